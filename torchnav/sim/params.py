@@ -1,0 +1,86 @@
+"""Simulator parameters: frozen dataclasses, SI units, validated on construction."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+INTEGRATORS = ("euler", "exact")
+
+
+def _require(cond: bool, msg: str) -> None:
+    if not cond:
+        raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class LidarParams:
+    """A planar lidar mounted on the robot.
+
+    Ray ``i`` points at ``angle_i = -fov/2 + i * fov / (n_rays - 1)`` in the sensor
+    frame for a partial field of view (so ray 0 looks to the right, the last ray to
+    the left, counter-clockwise order), and ``-pi + i * 2*pi / n_rays`` for a full
+    360-degree field of view (ray 0 looks backwards, ray ``n_rays/2`` straight ahead).
+    """
+
+    n_rays: int = 20  # number of raw rays
+    fov: float = math.pi  # field of view, rad (0, 2*pi]
+    min_range: float = 0.0  # m; closer returns read min_range
+    max_range: float = 10.0  # m; misses read max_range
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose in the robot frame: x m, y m, yaw rad
+    n_sectors: int | None = None  # if set, ``sectorize`` bins the rays into this many sectors by their minimum
+    noise_std: float = 0.0  # m, std of additive Gaussian range noise (needs a generator)
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.n_rays, int) and self.n_rays >= 1, f"lidar.n_rays must be a positive int, got {self.n_rays!r}")
+        _require(0.0 < self.fov <= 2 * math.pi + 1e-9, f"lidar.fov must be in (0, 2*pi] rad, got {self.fov!r}")
+        _require(0.0 <= self.min_range < self.max_range, f"lidar needs 0 <= min_range < max_range, got {self.min_range!r}, {self.max_range!r}")
+        _require(len(self.offset) == 3, f"lidar.offset must be (x, y, yaw), got {self.offset!r}")
+        _require(self.noise_std >= 0.0, f"lidar.noise_std must be >= 0, got {self.noise_std!r}")
+        if self.n_sectors is not None:
+            _require(
+                isinstance(self.n_sectors, int) and self.n_sectors >= 1 and self.n_rays % self.n_sectors == 0,
+                f"lidar.n_sectors must divide n_rays={self.n_rays}, got {self.n_sectors!r}",
+            )
+
+    @property
+    def full_circle(self) -> bool:
+        return self.fov >= 2 * math.pi - 1e-9
+
+    def angles(self) -> list[float]:
+        """Ray angles (rad) in the sensor frame, in ray order."""
+        n = self.n_rays
+        if self.full_circle:
+            return [-math.pi + i * 2 * math.pi / n for i in range(n)]
+        if n == 1:
+            return [0.0]
+        return [-self.fov / 2 + i * self.fov / (n - 1) for i in range(n)]
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Differential-drive robot and world-step parameters."""
+
+    dt: float = 0.1  # s per step
+    robot_radius: float = 0.2  # m, the robot is a disc
+    track_width: float = 0.3  # m, distance between the wheels
+    v_min: float = -0.5  # m/s
+    v_max: float = 0.5  # m/s
+    omega_max: float = 1.0  # rad/s, symmetric limit
+    lin_acc_max: float = math.inf  # m/s^2, inf disables the limit
+    ang_acc_max: float = math.inf  # rad/s^2, inf disables the limit
+    integrator: str = "exact"  # "exact" (constant-twist arc) or "euler"
+    odom_v_noise: float = 0.0  # m/s, std of per-step noise on the odometry's speed
+    odom_omega_noise: float = 0.0  # rad/s, std of per-step noise on the odometry's turn rate
+    lidar: LidarParams = field(default_factory=LidarParams)
+
+    def __post_init__(self) -> None:
+        _require(self.dt > 0, f"dt must be > 0 s, got {self.dt!r}")
+        _require(self.robot_radius > 0, f"robot_radius must be > 0 m, got {self.robot_radius!r}")
+        _require(self.track_width > 0, f"track_width must be > 0 m, got {self.track_width!r}")
+        _require(self.v_min <= self.v_max, f"need v_min <= v_max, got {self.v_min!r}, {self.v_max!r}")
+        _require(self.omega_max >= 0, f"omega_max must be >= 0 rad/s, got {self.omega_max!r}")
+        _require(self.lin_acc_max > 0 and self.ang_acc_max > 0, "acceleration limits must be > 0 (use inf to disable)")
+        _require(self.integrator in INTEGRATORS, f"integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
+        _require(self.odom_v_noise >= 0 and self.odom_omega_noise >= 0, "odometry noise std must be >= 0")
+        _require(isinstance(self.lidar, LidarParams), f"lidar must be a LidarParams, got {type(self.lidar).__name__}")

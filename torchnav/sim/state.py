@@ -1,0 +1,165 @@
+"""Batched simulator state and world, as tensorclasses of ``(B, ...)`` tensors.
+
+Frames and units: the world frame has x to the right and y up, in metres; a
+heading ``theta`` is measured counter-clockwise from +x in radians and kept in
+[-pi, pi).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import torch
+from tensordict import tensorclass
+from torch import Tensor
+
+from .params import SimParams
+
+
+@tensorclass
+class World:
+    """Per-env obstacles as padded tensors with validity masks.
+
+    Envs of one batch may hold different numbers of obstacles: slots whose mask
+    is False are ignored by collision and lidar. A kind may have zero slots.
+
+    Attributes:
+        segments: ``(B, S, 4)`` walls ``[x1, y1, x2, y2]`` in m.
+        segment_mask: ``(B, S)`` bool.
+        circles: ``(B, C, 3)`` ``[cx, cy, radius]`` in m.
+        circle_mask: ``(B, C)`` bool.
+        boxes: ``(B, K, 5)`` oriented boxes ``[cx, cy, half_x, half_y, yaw]`` (m, m, m, m, rad).
+        box_mask: ``(B, K)`` bool.
+    """
+
+    segments: Tensor
+    segment_mask: Tensor
+    circles: Tensor
+    circle_mask: Tensor
+    boxes: Tensor
+    box_mask: Tensor
+
+
+@tensorclass
+class SimState:
+    """Everything the simulator knows about ``B`` robots after a step.
+
+    Attributes:
+        pose: ``(B, 3)`` true pose ``[x m, y m, theta rad]``.
+        vel: ``(B, 2)`` applied twist ``[v m/s, omega rad/s]`` (after limits).
+        odom: ``(B, 3)`` odometry pose estimate, integrated from noisy velocities.
+        ranges: ``(B, n_rays)`` lidar ranges in m of the current pose.
+        clearance: ``(B,)`` signed distance in m from the robot disc to the nearest obstacle
+            (negative when penetrating).
+        collided: ``(B,)`` bool, ``clearance <= 0``.
+        time: ``(B,)`` simulated time in s since the last reset.
+    """
+
+    pose: Tensor
+    vel: Tensor
+    odom: Tensor
+    ranges: Tensor
+    clearance: Tensor
+    collided: Tensor
+    time: Tensor
+
+
+def _as_rows(x, width: int, name: str, dtype, device) -> Tensor:
+    t = torch.as_tensor(x if x is not None and len(x) else [], dtype=dtype, device=device)
+    if t.numel() == 0:
+        return t.reshape(0, width)
+    if t.dim() != 2 or t.shape[-1] != width:
+        raise ValueError(f"{name} must have shape (N, {width}), got {tuple(t.shape)}")
+    return t
+
+
+def make_world(
+    batch_size: int,
+    segments: Sequence[Sequence[float]] | Tensor | None = None,
+    circles: Sequence[Sequence[float]] | Tensor | None = None,
+    boxes: Sequence[Sequence[float]] | Tensor | None = None,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+) -> World:
+    """The same obstacles in every env of a batch of ``batch_size``.
+
+    ``segments`` is ``(S, 4)``, ``circles`` ``(C, 3)``, ``boxes`` ``(K, 5)``, in the
+    layouts of :class:`World`. Padded slots can be added later by concatenation.
+    """
+    parts = {
+        "segments": _as_rows(segments, 4, "segments", dtype, device),
+        "circles": _as_rows(circles, 3, "circles", dtype, device),
+        "boxes": _as_rows(boxes, 5, "boxes", dtype, device),
+    }
+    if parts["circles"].numel() and (parts["circles"][:, 2] < 0).any():
+        raise ValueError("circles: radius must be >= 0")
+    if parts["boxes"].numel() and (parts["boxes"][:, 2:4] < 0).any():
+        raise ValueError("boxes: half extents must be >= 0")
+    out = {}
+    for key, t in parts.items():
+        out[key] = t.unsqueeze(0).expand(batch_size, *t.shape).clone()
+        out[key.rstrip("s") + "_mask" if key != "boxes" else "box_mask"] = torch.ones(
+            batch_size, t.shape[0], dtype=torch.bool, device=device
+        )
+    return World(
+        segments=out["segments"],
+        segment_mask=out["segment_mask"],
+        circles=out["circles"],
+        circle_mask=out["circle_mask"],
+        boxes=out["boxes"],
+        box_mask=out["box_mask"],
+        batch_size=[batch_size],
+        device=device,
+    )
+
+
+def check_world(world: World, batch_size: int, dtype: torch.dtype, device: torch.device) -> None:
+    """Raise a ValueError naming the field whose shape, dtype or device is off."""
+    specs = {
+        "segments": 4,
+        "circles": 3,
+        "boxes": 5,
+    }
+    masks = {"segments": "segment_mask", "circles": "circle_mask", "boxes": "box_mask"}
+    for name, width in specs.items():
+        t = getattr(world, name)
+        m = getattr(world, masks[name])
+        if t.dim() != 3 or t.shape[0] != batch_size or t.shape[2] != width:
+            raise ValueError(f"world.{name} must have shape ({batch_size}, N, {width}), got {tuple(t.shape)}")
+        if m.shape != t.shape[:2] or m.dtype != torch.bool:
+            raise ValueError(f"world.{masks[name]} must be a bool tensor of shape {tuple(t.shape[:2])}, got {m.dtype} {tuple(m.shape)}")
+        if t.dtype != dtype:
+            raise ValueError(f"world.{name} has dtype {t.dtype}, expected {dtype} (the state's dtype)")
+        if t.device != device:
+            raise ValueError(f"world.{name} is on {t.device}, expected {device} (the state's device)")
+
+
+def init_state(
+    pose: Tensor,
+    world: World,
+    params: SimParams,
+    vel: Tensor | None = None,
+) -> SimState:
+    """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
+    scan and clearance already computed. Odometry starts at the true pose."""
+    from .geometry import disc_clearance
+    from .lidar import lidar_scan
+
+    if pose.dim() != 2 or pose.shape[-1] != 3:
+        raise ValueError(f"pose must have shape (B, 3), got {tuple(pose.shape)}")
+    b = pose.shape[0]
+    check_world(world, b, pose.dtype, pose.device)
+    if vel is None:
+        vel = pose.new_zeros(b, 2)
+    clearance = disc_clearance(pose, world, params.robot_radius)
+    return SimState(
+        pose=pose,
+        vel=vel,
+        odom=pose,
+        ranges=lidar_scan(pose, world, params.lidar),
+        clearance=clearance,
+        collided=clearance <= 0,
+        time=pose.new_zeros(b),
+        batch_size=[b],
+        device=pose.device,
+    )
