@@ -1,0 +1,72 @@
+"""Distances from robot discs to obstacles, and the box-edge helper shared with the lidar."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from .math import rotate, safe_hypot
+from .state import World
+
+
+def box_corners(boxes: Tensor) -> Tensor:
+    """Corners of oriented boxes ``(..., 5)`` ``[cx, cy, hx, hy, yaw]`` -> ``(..., 4, 2)``, CCW."""
+    cx, cy, hx, hy, yaw = boxes.unbind(-1)
+    sx = torch.stack((hx, -hx, -hx, hx), dim=-1)
+    sy = torch.stack((hy, hy, -hy, -hy), dim=-1)
+    rx, ry = rotate(sx, sy, yaw.unsqueeze(-1))
+    return torch.stack((rx + cx.unsqueeze(-1), ry + cy.unsqueeze(-1)), dim=-1)
+
+
+def box_segments(boxes: Tensor, box_mask: Tensor) -> tuple[Tensor, Tensor]:
+    """The 4 edges of each box as segments: ``(B, K, 5)`` -> ``(B, 4K, 4)`` and mask ``(B, 4K)``."""
+    c = box_corners(boxes)  # (B, K, 4, 2)
+    seg = torch.cat((c, c.roll(-1, dims=-2)), dim=-1)  # (B, K, 4, 4): corner i -> corner i+1
+    b = boxes.shape[0]
+    return seg.reshape(b, -1, 4), box_mask.unsqueeze(-1).expand(*box_mask.shape, 4).reshape(b, -1)
+
+
+def point_segment_distance(p: Tensor, seg: Tensor) -> Tensor:
+    """Distance from points ``(B, 2)`` to segments ``(B, S, 4)`` -> ``(B, S)``; safe for zero-length segments."""
+    px, py = p[:, 0:1], p[:, 1:2]
+    ax, ay, bx, by = seg.unbind(-1)
+    ex, ey = bx - ax, by - ay
+    wx, wy = px - ax, py - ay
+    ee = ex * ex + ey * ey
+    degenerate = ee <= 1e-12
+    t = ((wx * ex + wy * ey) / torch.where(degenerate, torch.ones_like(ee), ee)).clamp(0.0, 1.0)
+    t = torch.where(degenerate, torch.zeros_like(t), t)
+    return safe_hypot(wx - t * ex, wy - t * ey)
+
+
+def point_circle_distance(p: Tensor, circles: Tensor) -> Tensor:
+    """Signed distance from points ``(B, 2)`` to circles ``(B, C, 3)`` -> ``(B, C)`` (negative inside)."""
+    return safe_hypot(p[:, 0:1] - circles[..., 0], p[:, 1:2] - circles[..., 1]) - circles[..., 2]
+
+
+def point_box_distance(p: Tensor, boxes: Tensor) -> Tensor:
+    """Signed distance from points ``(B, 2)`` to oriented boxes ``(B, K, 5)`` -> ``(B, K)`` (negative inside)."""
+    cx, cy, hx, hy, yaw = boxes.unbind(-1)
+    qx, qy = rotate(p[:, 0:1] - cx, p[:, 1:2] - cy, -yaw)
+    dx, dy = qx.abs() - hx, qy.abs() - hy
+    outside = safe_hypot(dx.clamp(min=0.0), dy.clamp(min=0.0))
+    inside = torch.maximum(dx, dy).clamp(max=0.0)
+    return outside + inside
+
+
+def disc_clearance(pose: Tensor, world: World, radius: float) -> Tensor:
+    """Signed gap in m between robot discs at ``pose`` ``(B, 3)`` and the nearest obstacle -> ``(B,)``.
+
+    Walls are treated as zero-thickness segments, so the gap is never below
+    ``-radius`` for them. An env with no obstacle reads +inf.
+    """
+    p = pose[:, :2]
+    dists = [
+        torch.where(world.segment_mask, point_segment_distance(p, world.segments), torch.full_like(world.segment_mask, float("inf"), dtype=p.dtype)),
+        torch.where(world.circle_mask, point_circle_distance(p, world.circles), torch.full_like(world.circle_mask, float("inf"), dtype=p.dtype)),
+        torch.where(world.box_mask, point_box_distance(p, world.boxes), torch.full_like(world.box_mask, float("inf"), dtype=p.dtype)),
+    ]
+    d = torch.cat(dists, dim=1)
+    if d.shape[1] == 0:
+        return torch.full_like(p[:, 0], float("inf"))
+    return d.amin(dim=1) - radius

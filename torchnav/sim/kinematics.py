@@ -1,0 +1,82 @@
+"""Differential-drive kinematics: command conversions, limits and integrators.
+
+A twist is ``(v, omega)``: forward speed in m/s and turn rate in rad/s (CCW
+positive). Wheel speeds are the linear rim speeds of the left and right wheels
+in m/s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from .math import safe_sinc, wrap_angle
+from .params import SimParams
+
+
+def wheels_to_unicycle(wheels: Tensor, track_width: float) -> Tensor:
+    """``(..., 2)`` wheel speeds ``[v_left, v_right]`` (m/s) -> twist ``[v, omega]``."""
+    vl, vr = wheels.unbind(-1)
+    return torch.stack(((vr + vl) * 0.5, (vr - vl) / track_width), dim=-1)
+
+
+def unicycle_to_wheels(twist: Tensor, track_width: float) -> Tensor:
+    """``(..., 2)`` twist ``[v, omega]`` -> wheel speeds ``[v_left, v_right]`` (m/s)."""
+    v, w = twist.unbind(-1)
+    half = 0.5 * track_width * w
+    return torch.stack((v - half, v + half), dim=-1)
+
+
+def apply_limits(cmd: Tensor, prev: Tensor, params: SimParams) -> Tensor:
+    """Clamp a commanded twist ``(B, 2)`` to the speed limits and, if finite, to the
+    acceleration limits relative to the previous twist ``prev`` ``(B, 2)``.
+
+    Non-finite commands (NaN, inf) are replaced by 0 before limiting, i.e. the robot
+    is told to stop, so one bad action never puts NaN into the state. The
+    environment layer rejects such actions with an error by default.
+    """
+    cmd = torch.where(torch.isfinite(cmd), cmd, torch.zeros_like(cmd))
+    v = cmd[:, 0].clamp(params.v_min, params.v_max)
+    w = cmd[:, 1].clamp(-params.omega_max, params.omega_max)
+    if math.isfinite(params.lin_acc_max):
+        dv = params.lin_acc_max * params.dt
+        v = torch.minimum(torch.maximum(v, prev[:, 0] - dv), prev[:, 0] + dv)
+    if math.isfinite(params.ang_acc_max):
+        dw = params.ang_acc_max * params.dt
+        w = torch.minimum(torch.maximum(w, prev[:, 1] - dw), prev[:, 1] + dw)
+    return torch.stack((v, w), dim=-1)
+
+
+def integrate_euler(pose: Tensor, twist: Tensor, dt: float) -> Tensor:
+    """Textbook forward-Euler step: ``x += v cos(theta) dt``, ``theta += omega dt``.
+
+    Args:
+        pose: ``(B, 3)`` ``[x, y, theta]``. twist: ``(B, 2)``. dt: s.
+    """
+    x, y, th = pose.unbind(-1)
+    v, w = twist.unbind(-1)
+    return torch.stack((x + v * torch.cos(th) * dt, y + v * torch.sin(th) * dt, wrap_angle(th + w * dt)), dim=-1)
+
+
+def integrate_exact(pose: Tensor, twist: Tensor, dt: float) -> Tensor:
+    """Exact pose after driving the constant twist for ``dt``: a circular arc.
+
+    Written as a chord of length ``v dt sinc(omega dt / 2)`` along the mean heading
+    ``theta + omega dt / 2``, which equals ``v/omega (sin(theta + omega dt) - sin theta)``
+    etc. but stays finite, with a finite gradient, as ``omega -> 0``.
+    """
+    x, y, th = pose.unbind(-1)
+    v, w = twist.unbind(-1)
+    half = 0.5 * w * dt
+    chord = v * dt * safe_sinc(half)
+    mid = th + half
+    return torch.stack((x + chord * torch.cos(mid), y + chord * torch.sin(mid), wrap_angle(th + 2.0 * half)), dim=-1)
+
+
+def integrate(pose: Tensor, twist: Tensor, params: SimParams) -> Tensor:
+    """Advance ``pose`` ``(B, 3)`` by ``twist`` ``(B, 2)`` over ``params.dt`` with ``params.integrator``."""
+    if params.integrator == "euler":
+        return integrate_euler(pose, twist, params.dt)
+    return integrate_exact(pose, twist, params.dt)
