@@ -1,0 +1,137 @@
+"""Map data types: :class:`MapSpec` and the random-object settings, and :class:`MapError`.
+
+Frames and units: x right, y up, metres; the world spans ``[-w/2, w/2] x [-h/2, h/2]``;
+yaw in radians counter-clockwise from +x.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import torch
+
+from torchnav.sim.state import World, make_world
+
+
+class MapError(ValueError):
+    """A map file could not be found, parsed or validated. The message names the file and key."""
+
+
+@dataclass(frozen=True)
+class RandomBoxes:
+    """Oriented boxes the task re-places on every reset (``random_boxes`` in YAML)."""
+
+    count: int  # number of boxes per env
+    size_x: tuple[float, float]  # m, (min, max) FULL extent along the box's own x axis
+    size_y: tuple[float, float]  # m, (min, max) FULL extent along the box's own y axis
+    yaw: tuple[float, float] = (-math.pi, math.pi)  # rad, (min, max)
+    clearance: float = 1.0  # m, min distance from the robot start and from the goal
+    margin: float = 0.1  # m, min gap to fixed obstacles, walls and other random objects
+
+
+@dataclass(frozen=True)
+class RandomCircles:
+    """Circles the task re-places on every reset (``random_circles`` in YAML)."""
+
+    count: int  # number of circles per env
+    radius: tuple[float, float]  # m, (min, max)
+    clearance: float = 1.0  # m, min distance from the robot start and from the goal
+    margin: float = 0.1  # m, min gap to fixed obstacles, walls and other random objects
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """A validated map. Geometry is in world metres, in the layouts of :class:`World`.
+
+    Attributes:
+        name: map name (``name:`` in the file, else the file stem).
+        source: path of the file it was read from.
+        size: ``(w, h)`` in m; the world spans ``[-w/2, w/2] x [-h/2, h/2]``.
+        segments: walls ``(x1, y1, x2, y2)`` in m, ``boundary`` already expanded.
+        circles: fixed circles ``(cx, cy, r)`` in m.
+        boxes: fixed boxes ``(cx, cy, half_x, half_y, yaw)``: HALF extents in m, yaw in rad.
+        random_boxes / random_circles: what the task re-places on reset, or None.
+    """
+
+    name: str
+    source: str
+    size: tuple[float, float]
+    segments: tuple[tuple[float, float, float, float], ...] = ()
+    circles: tuple[tuple[float, float, float], ...] = ()
+    boxes: tuple[tuple[float, float, float, float, float], ...] = ()
+    random_boxes: RandomBoxes | None = None
+    random_circles: RandomCircles | None = None
+
+    @property
+    def n_fixed_boxes(self) -> int:
+        return len(self.boxes)
+
+    @property
+    def n_fixed_circles(self) -> int:
+        return len(self.circles)
+
+    @property
+    def n_box_slots(self) -> int:
+        """Box slots per env in :meth:`build_world`: fixed boxes, then random ones."""
+        return len(self.boxes) + (self.random_boxes.count if self.random_boxes else 0)
+
+    @property
+    def n_circle_slots(self) -> int:
+        """Circle slots per env in :meth:`build_world`: fixed circles, then random ones."""
+        return len(self.circles) + (self.random_circles.count if self.random_circles else 0)
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(xmin, ymin, xmax, ymax)`` of the world rectangle in m."""
+        w, h = self.size
+        return (-w / 2, -h / 2, w / 2, h / 2)
+
+    def build_world(
+        self,
+        batch_size: int,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+    ) -> World:
+        """The map's world for ``batch_size`` envs.
+
+        Every env holds the fixed obstacles. ``boxes`` is ``(B, n_fixed_boxes +
+        random_boxes.count, 5)``: the fixed boxes first, then zeroed slots with
+        ``box_mask`` False that the task fills (and switches on) at reset.
+        ``circles`` is laid out the same way with ``random_circles``.
+        """
+        fixed = make_world(batch_size, self.segments, self.circles, self.boxes, device=device, dtype=dtype)
+        n_rb = self.random_boxes.count if self.random_boxes else 0
+        n_rc = self.random_circles.count if self.random_circles else 0
+
+        def pad(t: torch.Tensor, mask: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+            return (
+                torch.cat([t, t.new_zeros(batch_size, n, t.shape[-1])], dim=1),
+                torch.cat([mask, mask.new_zeros(batch_size, n)], dim=1),
+            )
+
+        boxes, box_mask = pad(fixed.boxes, fixed.box_mask, n_rb)
+        circles, circle_mask = pad(fixed.circles, fixed.circle_mask, n_rc)
+        return World(
+            segments=fixed.segments,
+            segment_mask=fixed.segment_mask,
+            circles=circles,
+            circle_mask=circle_mask,
+            boxes=boxes,
+            box_mask=box_mask,
+            batch_size=[batch_size],
+            device=device,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain python types (lists, floats, None) for logging and config dumps."""
+
+        def plain(x: Any) -> Any:
+            if isinstance(x, dict):
+                return {k: plain(v) for k, v in x.items()}
+            if isinstance(x, (list, tuple)):
+                return [plain(v) for v in x]
+            return x
+
+        return plain(asdict(self))
