@@ -3,7 +3,7 @@
 Nothing here knows about tasks, rewards or TorchRL.
 """
 
-from .geometry import box_corners, disc_clearance, point_box_distance, point_circle_distance, point_segment_distance
+from .geometry import box_corners, disc_clearance, points_clearance, point_box_distance, point_circle_distance, point_segment_distance
 from .kinematics import apply_limits, integrate, integrate_euler, integrate_exact, unicycle_to_wheels, wheels_to_unicycle
 from .lidar import cast_rays, hit_box, hit_circle, hit_segment, lidar_scan, ray_origins_and_angles, sectorize
 from .math import safe_hypot, safe_norm, safe_sinc, wrap_angle
@@ -14,7 +14,7 @@ from .step import check_action, step
 __all__ = [
     "LidarParams", "SimParams", "SimState", "World", "make_world", "init_state", "check_world",
     "step", "check_action", "lidar_scan", "cast_rays", "hit_segment", "hit_circle", "hit_box", "sectorize", "ray_origins_and_angles", "disc_clearance",
-    "point_segment_distance", "point_circle_distance", "point_box_distance", "box_corners",
+    "point_segment_distance", "points_clearance", "point_circle_distance", "point_box_distance", "box_corners",
     "integrate", "integrate_euler", "integrate_exact", "apply_limits", "wheels_to_unicycle",
     "unicycle_to_wheels", "wrap_angle", "safe_norm", "safe_hypot", "safe_sinc",
 ]

@@ -26,9 +26,7 @@ def box_segments(boxes: Tensor, box_mask: Tensor) -> tuple[Tensor, Tensor]:
     return seg.reshape(b, -1, 4), box_mask.unsqueeze(-1).expand(*box_mask.shape, 4).reshape(b, -1)
 
 
-def point_segment_distance(p: Tensor, seg: Tensor) -> Tensor:
-    """Distance from points ``(B, 2)`` to segments ``(B, S, 4)`` -> ``(B, S)``; safe for zero-length segments."""
-    px, py = p[:, 0:1], p[:, 1:2]
+def _segment_dist(px: Tensor, py: Tensor, seg: Tensor) -> Tensor:
     ax, ay, bx, by = seg.unbind(-1)
     ex, ey = bx - ax, by - ay
     wx, wy = px - ax, py - ay
@@ -39,19 +37,51 @@ def point_segment_distance(p: Tensor, seg: Tensor) -> Tensor:
     return safe_hypot(wx - t * ex, wy - t * ey)
 
 
-def point_circle_distance(p: Tensor, circles: Tensor) -> Tensor:
-    """Signed distance from points ``(B, 2)`` to circles ``(B, C, 3)`` -> ``(B, C)`` (negative inside)."""
-    return safe_hypot(p[:, 0:1] - circles[..., 0], p[:, 1:2] - circles[..., 1]) - circles[..., 2]
+def _circle_dist(px: Tensor, py: Tensor, circ: Tensor) -> Tensor:
+    return safe_hypot(px - circ[..., 0], py - circ[..., 1]) - circ[..., 2]
 
 
-def point_box_distance(p: Tensor, boxes: Tensor) -> Tensor:
-    """Signed distance from points ``(B, 2)`` to oriented boxes ``(B, K, 5)`` -> ``(B, K)`` (negative inside)."""
-    cx, cy, hx, hy, yaw = boxes.unbind(-1)
-    qx, qy = rotate(p[:, 0:1] - cx, p[:, 1:2] - cy, -yaw)
+def _box_dist(px: Tensor, py: Tensor, box: Tensor) -> Tensor:
+    cx, cy, hx, hy, yaw = box.unbind(-1)
+    qx, qy = rotate(px - cx, py - cy, -yaw)
     dx, dy = qx.abs() - hx, qy.abs() - hy
     outside = safe_hypot(dx.clamp(min=0.0), dy.clamp(min=0.0))
     inside = torch.maximum(dx, dy).clamp(max=0.0)
     return outside + inside
+
+
+def point_segment_distance(p: Tensor, seg: Tensor) -> Tensor:
+    """Distance from points ``(B, 2)`` to segments ``(B, S, 4)`` -> ``(B, S)``; safe for zero-length segments."""
+    return _segment_dist(p[:, 0:1], p[:, 1:2], seg)
+
+
+def point_circle_distance(p: Tensor, circles: Tensor) -> Tensor:
+    """Signed distance from points ``(B, 2)`` to circles ``(B, C, 3)`` -> ``(B, C)`` (negative inside)."""
+    return _circle_dist(p[:, 0:1], p[:, 1:2], circles)
+
+
+def point_box_distance(p: Tensor, boxes: Tensor) -> Tensor:
+    """Signed distance from points ``(B, 2)`` to oriented boxes ``(B, K, 5)`` -> ``(B, K)`` (negative inside)."""
+    return _box_dist(p[:, 0:1], p[:, 1:2], boxes)
+
+
+def points_clearance(points: Tensor, world: World) -> Tensor:
+    """Signed distance from points ``(B, P, 2)`` to the nearest valid obstacle of their env -> ``(B, P)``.
+
+    ``+inf`` where an env has no valid obstacle. Used by reset samplers to test
+    many candidate positions per env at once.
+    """
+    px, py = points[..., 0:1], points[..., 1:2]  # (B, P, 1)
+    best = torch.full_like(points[..., 0], float("inf"))
+    for obs, mask, fn in (
+        (world.segments, world.segment_mask, _segment_dist),
+        (world.circles, world.circle_mask, _circle_dist),
+        (world.boxes, world.box_mask, _box_dist),
+    ):
+        if obs.shape[1]:
+            d = fn(px, py, obs.unsqueeze(1))  # (B, P, N)
+            best = torch.minimum(best, torch.where(mask.unsqueeze(1), d, float("inf")).amin(-1))
+    return best
 
 
 def disc_clearance(pose: Tensor, world: World, radius: float) -> Tensor:
@@ -60,13 +90,4 @@ def disc_clearance(pose: Tensor, world: World, radius: float) -> Tensor:
     Walls are treated as zero-thickness segments, so the gap is never below
     ``-radius`` for them. An env with no obstacle reads +inf.
     """
-    p = pose[:, :2]
-    dists = [
-        torch.where(world.segment_mask, point_segment_distance(p, world.segments), torch.full_like(world.segment_mask, float("inf"), dtype=p.dtype)),
-        torch.where(world.circle_mask, point_circle_distance(p, world.circles), torch.full_like(world.circle_mask, float("inf"), dtype=p.dtype)),
-        torch.where(world.box_mask, point_box_distance(p, world.boxes), torch.full_like(world.box_mask, float("inf"), dtype=p.dtype)),
-    ]
-    d = torch.cat(dists, dim=1)
-    if d.shape[1] == 0:
-        return torch.full_like(p[:, 0], float("inf"))
-    return d.amin(dim=1) - radius
+    return points_clearance(pose[:, None, :2], world)[:, 0] - radius
