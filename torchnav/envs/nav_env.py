@@ -1,0 +1,149 @@
+"""TorchRL environment for the navigation task: a thin wrapper around ``NavTask``.
+
+``batch_size=(num_envs,)``; specs made in one place (``_make_specs``); partial
+resets through the ``"_reset"`` mask; an explicit ``torch.Generator`` seeded by
+``set_seed``. Per-episode statistics are running values under ``"episode"``:
+read them where ``done`` is set.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
+from torchrl.envs import EnvBase
+
+from ..config import merge, to_dict
+from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes
+
+
+class NavEnv(EnvBase):
+    """Batched lidar navigation (see docs/tasks.md for observation, action and reward)."""
+
+    _has_dynamic_specs = False
+
+    def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
+        cfg = cfg or NavConfig()
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.cfg = cfg
+        self.task = NavTask(cfg, num_envs, device=self.device)
+        self.curriculum = CurriculumState.initial(cfg.curriculum, device=self.device)
+        self._generator = torch.Generator(device=self.device)
+        self._generator.manual_seed(0 if seed is None else seed)
+        self._state: NavState | None = None
+        self._make_specs()
+
+    # -- specs ----------------------------------------------------------------------
+
+    def _make_specs(self) -> None:
+        b, dev, t = self.batch_size, self.device, self.task
+        flag = lambda: Categorical(2, shape=(*b, 1), dtype=torch.bool, device=dev)  # noqa: E731
+        scalar = lambda: Unbounded(shape=(*b, 1), device=dev)  # noqa: E731
+        lidar = self.cfg.lidar
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(*b, t.obs_size), device=dev),
+            pose=Unbounded(shape=(*b, 3), device=dev),
+            goal=Unbounded(shape=(*b, 2), device=dev),
+            ranges=Bounded(lidar.min_range, lidar.max_range, shape=(*b, lidar.n_rays), device=dev),
+            success=flag(),
+            collision=flag(),
+            curriculum_radius=scalar(),
+            reward_terms=Composite({k: scalar() for k in t.term_names}, shape=b, device=dev),
+            episode=Composite(
+                {"return": scalar(), "length": scalar(), "path_length": scalar(), "straight_line": scalar(),
+                 **{f"term_{k}": scalar() for k in t.term_names}},
+                shape=b, device=dev,
+            ),
+            shape=b, device=dev,
+        )
+        if self.cfg.action.mode == "discrete":
+            self.action_spec = OneHot(len(self.cfg.action.discrete_set), shape=(*b, len(self.cfg.action.discrete_set)), device=dev)
+        else:
+            self.action_spec = Bounded(-1.0, 1.0, shape=(*b, 2), device=dev)
+        self.reward_spec = Unbounded(shape=(*b, 1), device=dev)
+        self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=b, device=dev)
+
+    # -- TorchRL hooks ------------------------------------------------------------------
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._generator.manual_seed(0 if seed is None else int(seed))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if self._state is None or mask is None:
+            self._state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
+        else:
+            self._state, self.curriculum = self.task.reset(self._state, mask.reshape(-1), self.curriculum, self._generator, inplace=True)
+        s = self._state
+        # Separate tensors per key: TorchRL may write into them in place, so they must not alias.
+        false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
+        terms = {k: torch.zeros_like(s.goal_dist) for k in self.task.term_names}
+        out = self._outputs(s, s.history.reshape(self.num_envs, -1), terms, false(), false())
+        out.update({"done": false(), "terminated": false(), "truncated": false()})
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action")
+        if self.cfg.check_actions and not torch.isfinite(action).all():
+            bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
+            raise ValueError(
+                f"NavEnv.step: action contains NaN or inf in envs {bad[:10]}{'...' if len(bad) > 10 else ''}; "
+                "fix the policy, or pass check_actions=False to let the simulator treat them as a stop command"
+            )
+        self._state, out = self.task.step(self._state, action, self._generator)
+        terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
+        self.curriculum = after_episodes(self.curriculum, self.cfg.curriculum, (terminated | truncated)[:, 0], out["success"])
+        td = self._outputs(self._state, out["observation"], out["terms"], out["success"][:, None], out["collision"][:, None])
+        td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
+        return td
+
+    def _outputs(self, s: NavState, obs, terms, success, collision) -> TensorDict:
+        b = self.batch_size
+        col = lambda x: x.reshape(*b, 1)  # noqa: E731
+        episode = {
+            "return": col(s.ep_return), "length": col(s.steps.to(s.ep_return.dtype)),
+            "path_length": col(s.ep_path), "straight_line": col(s.straight),
+            **{f"term_{k}": col(s.ep_terms[:, i]) for i, k in enumerate(self.task.term_names)},
+        }
+        return TensorDict(
+            {
+                "observation": obs, "pose": s.sim.pose, "goal": s.goal, "ranges": s.sim.ranges,
+                "success": success, "collision": collision,
+                "curriculum_radius": self.curriculum.radius.expand(*b).reshape(*b, 1).clone(),
+                "reward_terms": {k: col(v) for k, v in terms.items()},
+                "episode": episode,
+            },
+            batch_size=b, device=self.device,
+        )
+
+    # -- state for checkpoints and recording ------------------------------------------------
+
+    @property
+    def num_envs(self) -> int:
+        return self.batch_size[0]
+
+    @property
+    def state(self) -> NavState | None:
+        """The current task state (read-only use: world, goals, poses of every env)."""
+        return self._state
+
+    def state_dict(self) -> dict[str, Any]:
+        """Curriculum and RNG state, for checkpoints (episodes in flight are not saved)."""
+        return {"curriculum": self.curriculum.state_dict(), "generator": self._generator.get_state()}
+
+    def load_state_dict(self, sd: dict[str, Any]) -> None:
+        self.curriculum.load_state_dict(sd["curriculum"])
+        if "generator" in sd:
+            self._generator.set_state(sd["generator"])
+
+
+def make_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
+    """Build a ``NavEnv`` from keyword overrides of ``NavConfig`` (nested dicts for sections).
+
+    Example: ``make_env("warehouse", 256, curriculum={"growth": 0.01}, reward={"preset": "shaped"})``.
+    Unknown keys raise a ConfigError naming the key.
+    """
+    cfg = NavConfig.from_dict(merge(to_dict(NavConfig()), {"map": map, **overrides}))
+    return NavEnv(cfg, num_envs=num_envs, device=device, seed=seed)

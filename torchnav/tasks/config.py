@@ -1,0 +1,143 @@
+"""Navigation task configuration: frozen dataclasses, every field a YAML key.
+
+Units are in the field comments. ``NavConfig.from_dict`` rejects unknown keys
+and wrong types with an error naming the key.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from ..config import ConfigError, from_dict
+from ..sim import LidarParams, SimParams
+
+CURRICULUM_MODES = ("growth", "success", "off")
+ACTION_MODES = ("continuous", "discrete")
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    dt: float = 0.1  # s per step
+    radius: float = 0.2  # m, robot disc
+    track_width: float = 0.3  # m, wheel separation
+    v_max: float = 1.0  # m/s
+    omega_max: float = 1.0  # rad/s
+    lin_acc_max: float = math.inf  # m/s^2 (inf: no limit)
+    ang_acc_max: float = math.inf  # rad/s^2 (inf: no limit)
+    integrator: str = "exact"  # "exact" | "euler"
+    odom_v_noise: float = 0.0  # m/s, per-step std of the odometry's speed error
+    odom_omega_noise: float = 0.0  # rad/s, per-step std of the odometry's turn-rate error
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    n_rays: int = 20  # raw rays; 180 reproduces the classic 1-degree scan
+    fov_deg: float = 180.0  # degrees
+    min_range: float = 0.0  # m
+    max_range: float = 10.0  # m (the classic 10 m cap)
+    n_sectors: int = 20  # observation bins (min over consecutive rays); must divide n_rays
+    noise_std: float = 0.0  # m, Gaussian range noise
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose on the robot: m, m, rad
+
+
+@dataclass(frozen=True)
+class CurriculumConfig:
+    """The bootstrapped goal radius: goals at a distance in [min_radius, radius] from the start."""
+
+    mode: str = "growth"  # "growth" per placement, "success"-gated, or "off" (radius = max_radius)
+    min_radius: float = 0.5  # m, lower bound of the goal distance
+    init_radius: float = 1.0  # m, radius at the start of training
+    max_radius: float = 15.0  # m, cap (15 m covers the whole 10 x 10 arena)
+    growth: float = 0.004  # m added per goal placement (mode "growth"; the classic value)
+    success_threshold: float = 0.8  # mode "success": grow when the success-rate average exceeds this
+    success_step: float = 0.25  # m added per finished episode batch while above the threshold
+    success_smoothing: float = 0.01  # weight of each finished episode in the success-rate average
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    preset: str = "classic"  # "classic" | "progress" | "shaped"; see docs/tasks.md
+    weights: dict[str, float] = field(default_factory=dict)  # per-term weight overrides
+    proximity_distance: float = 1.0  # m, obstacles nearer than this are penalised
+    spin_threshold: float = 0.5  # rad/s, turn rates above this are penalised ("progress")
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    normalize: bool = True  # scale lidar and distances by max_range, angles by pi, speeds by limits
+    history: int = 1  # stack the last k observations
+    goal_from_odom: bool = False  # goal vector from the drifting odometry instead of the true pose
+
+
+@dataclass(frozen=True)
+class ActionConfig:
+    mode: str = "continuous"  # "continuous" in [-1, 1]^2 or "discrete" (one-hot over `discrete_set`)
+    forward_only: bool = True  # map a[0] to v in [0, v_max] (else [-v_max, v_max])
+    # (v, omega) as fractions of (v_max, omega_max), for mode "discrete"
+    discrete_set: tuple[tuple[float, float], ...] = (
+        (1.0, 0.0), (1.0, 0.5), (1.0, -0.5), (0.5, 1.0), (0.5, -1.0), (0.0, 1.0), (0.0, -1.0),
+    )
+
+
+@dataclass(frozen=True)
+class ResetConfig:
+    start_clearance: float = 0.3  # m, free gap around the robot disc at the start pose
+    goal_clearance: float = 0.4  # m, distance of the goal point from any obstacle
+    candidates: int = 32  # rejection-sampling candidates per env and object
+
+
+@dataclass(frozen=True)
+class NavConfig:
+    map: str = "arena"  # shipped map name or path to a map YAML
+    max_steps: int = 500  # steps before truncation
+    goal_tolerance: float = 0.3  # m, success when the robot centre is this close to the goal
+    check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
+    action: ActionConfig = field(default_factory=ActionConfig)
+    reset: ResetConfig = field(default_factory=ResetConfig)
+
+    def __post_init__(self) -> None:
+        c = self.curriculum
+        checks = [
+            (self.max_steps >= 1, "max_steps must be >= 1"),
+            (self.goal_tolerance > 0, "goal_tolerance must be > 0 m"),
+            (c.mode in CURRICULUM_MODES, f"curriculum.mode must be one of {CURRICULUM_MODES}, got {c.mode!r}"),
+            (0 <= c.min_radius <= c.init_radius <= c.max_radius, "curriculum needs 0 <= min_radius <= init_radius <= max_radius"),
+            (c.growth >= 0 and c.success_step >= 0, "curriculum growth and success_step must be >= 0"),
+            (0 < c.success_smoothing <= 1, "curriculum.success_smoothing must be in (0, 1]"),
+            (self.action.mode in ACTION_MODES, f"action.mode must be one of {ACTION_MODES}, got {self.action.mode!r}"),
+            (len(self.action.discrete_set) >= 2, "action.discrete_set needs at least 2 actions"),
+            (self.observation.history >= 1, "observation.history must be >= 1"),
+            (self.reset.candidates >= 1, "reset.candidates must be >= 1"),
+            (self.reset.start_clearance >= 0 and self.reset.goal_clearance >= 0, "reset clearances must be >= 0 m"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ConfigError(msg)
+        self.sim_params()  # validates robot and lidar fields
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | None = None, where: str = "env") -> "NavConfig":
+        return from_dict(cls, data, where)
+
+    def sim_params(self) -> SimParams:
+        r, li = self.robot, self.lidar
+        try:
+            lidar = LidarParams(
+                n_rays=li.n_rays, fov=math.radians(li.fov_deg), min_range=li.min_range, max_range=li.max_range,
+                offset=li.offset, n_sectors=li.n_sectors, noise_std=li.noise_std,
+            )
+            return SimParams(
+                dt=r.dt, robot_radius=r.radius, track_width=r.track_width,
+                v_min=0.0 if self.action.forward_only else -r.v_max, v_max=r.v_max, omega_max=r.omega_max,
+                lin_acc_max=r.lin_acc_max, ang_acc_max=r.ang_acc_max, integrator=r.integrator,
+                odom_v_noise=r.odom_v_noise, odom_omega_noise=r.odom_omega_noise, lidar=lidar,
+            )
+        except ValueError as e:
+            raise ConfigError(f"robot/lidar: {e}") from e

@@ -1,0 +1,192 @@
+"""The lidar navigation task: reset sampling, observation, reward terms, termination.
+
+``NavTask.step`` and ``NavTask.reset`` are pure functions of an explicit
+``NavState`` (no TorchRL here), so a differentiable rollout through task and
+simulator is possible: ``state, out = task.step(state, action)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import tensorclass
+from torch import Tensor
+
+from ..maps import load_map
+from ..sim import SimState, World, init_state, safe_hypot, sectorize, wrap_angle
+from ..sim import step as sim_step
+from .config import NavConfig
+from .curriculum import CurriculumState, after_placements
+from .rewards import resolve_weights, reward_terms
+from .sampling import place_random_objects, sample_goals, sample_starts
+
+
+@tensorclass
+class NavState:
+    """Per-env task state, all ``(B, ...)``.
+
+    Attributes:
+        sim: simulator state. world: obstacles of this episode. goal: ``(B, 2)`` m.
+        start: ``(B, 3)`` start pose. steps: ``(B,)`` int64 steps this episode.
+        goal_dist: ``(B,)`` m, distance to the goal after the last step.
+        ep_return, ep_path, straight: ``(B,)`` running return, path length (m) and
+            start-goal distance (m). ep_terms: ``(B, T)`` running sum of each reward term.
+        history: ``(B, H, D)`` the last H observations, newest last.
+    """
+
+    sim: SimState
+    world: World
+    goal: Tensor
+    start: Tensor
+    steps: Tensor
+    goal_dist: Tensor
+    ep_return: Tensor
+    ep_path: Tensor
+    straight: Tensor
+    ep_terms: Tensor
+    history: Tensor
+
+
+class NavTask:
+    """Configured navigation task for ``num_envs`` envs on ``device``."""
+
+    def __init__(self, cfg: NavConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.cfg = cfg
+        self.num_envs = num_envs
+        self.device = torch.device(device)
+        self.dtype = dtype
+        self.spec = load_map(cfg.map)
+        self.params = cfg.sim_params()
+        self.weights = resolve_weights(cfg.reward)
+        self.term_names = tuple(self.weights)
+        self.n_sectors = cfg.lidar.n_sectors
+        self.obs_dim = self.n_sectors + 4
+        self.obs_size = self.obs_dim * cfg.observation.history
+        # Fixed obstacles with every random slot masked off; resets fill the random slots.
+        self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
+        scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
+        self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
+        self._obs_scale = self._make_obs_scale()
+
+    # -- actions and observations -------------------------------------------------
+
+    def command(self, action: Tensor) -> Tensor:
+        """Policy action -> twist ``(B, 2)`` in m/s and rad/s.
+
+        Continuous: ``(B, 2)`` in [-1, 1] (clamped); a[0] -> v in [0, v_max] (forward only)
+        or [-v_max, v_max], a[1] -> omega in [-omega_max, omega_max]. Discrete: one-hot ``(B, n)``.
+        """
+        r = self.cfg.robot
+        if self.cfg.action.mode == "discrete":
+            return action.to(self.dtype) @ self.discrete_twists
+        a = action.clamp(-1.0, 1.0)
+        v = (a[:, 0] + 1.0) * (0.5 * r.v_max) if self.cfg.action.forward_only else a[:, 0] * r.v_max
+        return torch.stack((v, a[:, 1] * r.omega_max), dim=-1)
+
+    def _make_obs_scale(self) -> Tensor:
+        li, r = self.cfg.lidar, self.cfg.robot
+        if not self.cfg.observation.normalize:
+            return torch.ones(self.obs_dim, dtype=self.dtype, device=self.device)
+        s = [1.0 / li.max_range] * self.n_sectors + [1.0 / li.max_range, 1.0 / math.pi, 1.0 / r.v_max, 1.0 / max(r.omega_max, 1e-9)]
+        return torch.tensor(s, dtype=self.dtype, device=self.device)
+
+    def goal_vector(self, pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
+        """Distance (m) and bearing (rad, robot frame, CCW) from ``pose`` ``(B, 3)`` to ``goal`` ``(B, 2)``."""
+        dx, dy = goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1]
+        dist = safe_hypot(dx, dy)
+        far = dist > 1e-6  # atan2 has no gradient at the origin
+        bearing = wrap_angle(torch.atan2(torch.where(far, dy, 0.0), torch.where(far, dx, 1.0)) - pose[:, 2])
+        return dist, bearing
+
+    def observe(self, sim: SimState, goal: Tensor) -> Tensor:
+        """One observation ``(B, D)``: lidar sectors, goal distance and bearing, and (v, omega)."""
+        sectors = sectorize(sim.ranges, self.n_sectors)
+        pose = sim.odom if self.cfg.observation.goal_from_odom else sim.pose
+        dist, bearing = self.goal_vector(pose, goal)
+        obs = torch.cat((sectors, dist[:, None], bearing[:, None], sim.vel), dim=-1)
+        return obs * self._obs_scale
+
+    # -- reset ----------------------------------------------------------------------
+
+    def _fresh(self, idx: Tensor, cur: CurriculumState, gen: torch.Generator) -> NavState:
+        """New episodes for envs ``idx`` ``(n,)``."""
+        c, rc = self.cfg, self.cfg.reset
+        world = self.base_world[idx]
+        start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
+        goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
+        world = place_random_objects(world, self.spec, start[:, :2], goal, rc.candidates, gen)
+        sim = init_state(start, world, self.params)
+        n = idx.shape[0]
+        obs = self.observe(sim, goal)
+        dist, _ = self.goal_vector(sim.pose, goal)
+        zeros = torch.zeros(n, dtype=self.dtype, device=self.device)
+        return NavState(
+            sim=sim, world=world, goal=goal, start=start,
+            steps=torch.zeros(n, dtype=torch.int64, device=self.device),
+            goal_dist=dist, ep_return=zeros, ep_path=zeros.clone(), straight=dist.detach().clone(),
+            ep_terms=torch.zeros(n, len(self.term_names), dtype=self.dtype, device=self.device),
+            history=obs[:, None, :].expand(n, self.cfg.observation.history, self.obs_dim).clone(),
+            batch_size=[n], device=self.device,
+        )
+
+    def initial_state(self, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
+        """Fresh episodes in every env."""
+        idx = torch.arange(self.num_envs, device=self.device)
+        return self._fresh(idx, cur, gen), after_placements(cur, self.cfg.curriculum, torch.tensor(self.num_envs, device=self.device))
+
+    def reset(
+        self, state: NavState, mask: Tensor, cur: CurriculumState, gen: torch.Generator, inplace: bool = False
+    ) -> tuple[NavState, CurriculumState]:
+        """New episodes for the envs where ``mask`` ``(B,)`` is True; the others are left bit-identical.
+
+        One host synchronisation (``nonzero``) selects the envs; only they are sampled.
+        Each placed goal advances the curriculum.
+        """
+        idx = mask.reshape(-1).nonzero().squeeze(-1)
+        if idx.numel() == 0:
+            return state, cur
+        fresh = self._fresh(idx, cur, gen)
+        if not inplace:
+            state = state.clone()
+        state[idx] = fresh
+        return state, after_placements(cur, self.cfg.curriculum, torch.tensor(idx.numel(), device=self.device))
+
+    # -- step -------------------------------------------------------------------------
+
+    def step(self, state: NavState, action: Tensor, gen: torch.Generator | None = None) -> tuple[NavState, dict[str, Tensor]]:
+        """Advance every env one step. Pure: ``state`` is not modified.
+
+        Returns the new state and ``out`` with ``observation`` ``(B, H*D)``, ``reward`` ``(B,)``,
+        ``terms`` (dict of ``(B,)`` weighted reward terms), ``terminated``, ``truncated``,
+        ``success``, ``collision`` ``(B,)`` bool.
+        """
+        sim = sim_step(state.sim, self.command(action), state.world, self.params, generator=gen)
+        dist, bearing = self.goal_vector(sim.pose, state.goal)
+        collision = sim.collided
+        success = (dist < self.cfg.goal_tolerance) & ~collision
+        terms = reward_terms(
+            self.weights, self.cfg.reward, success=success, collision=collision, vel=sim.vel,
+            d_min=sim.ranges.amin(-1), progress=state.goal_dist - dist, bearing=bearing,
+        )
+        stacked = torch.stack([terms[k] for k in self.term_names], dim=-1) if terms else state.ep_terms[:, :0]
+        reward = stacked.sum(-1) if terms else torch.zeros_like(dist)
+        steps = state.steps + 1
+        terminated = success | collision
+        truncated = (steps >= self.cfg.max_steps) & ~terminated
+        obs = self.observe(sim, state.goal)
+        history = torch.cat((state.history[:, 1:], obs[:, None]), dim=1)
+        new = NavState(
+            sim=sim, world=state.world, goal=state.goal, start=state.start, steps=steps, goal_dist=dist,
+            ep_return=state.ep_return + reward,
+            ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
+            straight=state.straight, ep_terms=state.ep_terms + stacked, history=history,
+            batch_size=state.batch_size, device=state.device,
+        )
+        out = {
+            "observation": history.reshape(history.shape[0], -1), "reward": reward, "terms": terms,
+            "terminated": terminated, "truncated": truncated, "success": success, "collision": collision,
+        }
+        return new, out

@@ -1,0 +1,77 @@
+"""Reward terms and presets. Each term is computed raw, weighted, and reported on its own.
+
+Raw terms (per env, per step):
+
+============  ==============================================================
+``goal``      1 on the step the goal is reached, else 0
+``collision`` 1 on the step the robot collides, else 0
+``velocity``  forward speed v in m/s (0 on terminal steps)
+``turning``   |omega| in rad/s (0 on terminal steps)
+``proximity`` ``max(0, proximity_distance - d_min)`` with d_min the nearest lidar
+              return in m (0 on terminal steps); the classic ``r3 = 1 - d_min``
+``progress``  decrease of the distance to the goal in this step, m
+``spin``      ``max(0, |omega| - spin_threshold)`` in rad/s (0 on terminal steps)
+``step``      1 every step
+``heading``   cosine of the goal bearing in the robot frame (0 on terminal steps)
+============  ==============================================================
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ..config import ConfigError
+from .config import RewardConfig
+
+TERMS = ("goal", "collision", "velocity", "turning", "proximity", "progress", "spin", "step", "heading")
+
+PRESETS: dict[str, dict[str, float]] = {
+    # The classic lidar TD3 reward: +-100 at the end, else v/2 - |omega|/2 - r3/2.
+    "classic": {"goal": 100.0, "collision": -100.0, "velocity": 0.5, "turning": -0.5, "proximity": -0.5},
+    "progress": {"goal": 100.0, "collision": -100.0, "progress": 10.0, "spin": -0.5, "proximity": -1.0},
+    "shaped": {"goal": 50.0, "collision": -10.0, "progress": 1.0, "step": -0.01, "heading": 0.1},
+}
+
+
+def resolve_weights(cfg: RewardConfig) -> dict[str, float]:
+    """The preset's weights with ``cfg.weights`` applied; unknown presets or terms raise."""
+    if cfg.preset not in PRESETS:
+        raise ConfigError(f"reward.preset: unknown preset {cfg.preset!r}; available: {', '.join(PRESETS)}")
+    for k in cfg.weights:
+        if k not in TERMS:
+            raise ConfigError(f"reward.weights: unknown term {k!r}; terms: {', '.join(TERMS)}")
+    w = dict(PRESETS[cfg.preset])
+    w.update(cfg.weights)
+    return {k: float(v) for k, v in w.items() if k in TERMS}
+
+
+def reward_terms(
+    weights: dict[str, float],
+    cfg: RewardConfig,
+    *,
+    success: Tensor,
+    collision: Tensor,
+    vel: Tensor,
+    d_min: Tensor,
+    progress: Tensor,
+    bearing: Tensor,
+) -> dict[str, Tensor]:
+    """Weighted reward terms ``{name: (B,)}`` for the terms named in ``weights``.
+
+    Args are ``(B,)`` tensors except ``vel`` ``(B, 2)``; booleans for success/collision.
+    """
+    alive = (~(success | collision)).to(vel.dtype)
+    v, w = vel[:, 0], vel[:, 1]
+    raw = {
+        "goal": lambda: success.to(vel.dtype),
+        "collision": lambda: collision.to(vel.dtype),
+        "velocity": lambda: v * alive,
+        "turning": lambda: w.abs() * alive,
+        "proximity": lambda: torch.relu(cfg.proximity_distance - d_min) * alive,
+        "progress": lambda: progress,
+        "spin": lambda: torch.relu(w.abs() - cfg.spin_threshold) * alive,
+        "step": lambda: torch.ones_like(v),
+        "heading": lambda: torch.cos(bearing) * alive,
+    }
+    return {k: wt * raw[k]() for k, wt in weights.items()}
