@@ -75,7 +75,8 @@ class NavEnv(EnvBase):
         if self._state is None or mask is None:
             self._state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
         else:
-            self._state, self.curriculum = self.task.reset(self._state, mask.reshape(-1), self.curriculum, self._generator, inplace=True)
+            # Out of place: the previous step's outputs share storage with the old state.
+            self._state, self.curriculum = self.task.reset(self._state, mask.reshape(-1), self.curriculum, self._generator)
         s = self._state
         # Separate tensors per key: TorchRL may write into them in place, so they must not alias.
         false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731

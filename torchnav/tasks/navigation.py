@@ -137,9 +137,7 @@ class NavTask:
         idx = torch.arange(self.num_envs, device=self.device)
         return self._fresh(idx, cur, gen), after_placements(cur, self.cfg.curriculum, torch.tensor(self.num_envs, device=self.device))
 
-    def reset(
-        self, state: NavState, mask: Tensor, cur: CurriculumState, gen: torch.Generator, inplace: bool = False
-    ) -> tuple[NavState, CurriculumState]:
+    def reset(self, state: NavState, mask: Tensor, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
         """New episodes for the envs where ``mask`` ``(B,)`` is True; the others are left bit-identical.
 
         One host synchronisation (``nonzero``) selects the envs; only they are sampled.
@@ -149,8 +147,7 @@ class NavTask:
         if idx.numel() == 0:
             return state, cur
         fresh = self._fresh(idx, cur, gen)
-        if not inplace:
-            state = state.clone()
+        state = state.clone()  # out of place: callers may hold views of the old state
         state[idx] = fresh
         return state, after_placements(cur, self.cfg.curriculum, torch.tensor(idx.numel(), device=self.device))
 
