@@ -1,0 +1,403 @@
+"""Episode recorder: a few envs of a batch -> an MCAP file that opens in Foxglove.
+
+Messages are JSON with JSON Schemas (Foxglove's well-known ``foxglove.*`` schemas,
+generated from the pinned foxglove-sdk, and torchnav's own ``torchnav.*``), in
+zstd-compressed chunks. Times are simulation time: each recorded env has its own
+clock that advances ``dt`` per step, and one extra ``dt`` between an episode's end
+and the next episode's start, so every channel's timestamps increase strictly.
+
+Topics, for each recorded env ``i`` (frames ``env{i}/world`` -> ``env{i}/base_link``
+-> ``env{i}/laser``)::
+
+    /env{i}/tf            foxglove.FrameTransforms   world -> robot, robot -> laser
+    /env{i}/scan          foxglove.LaserScan         raw lidar, in env{i}/laser
+    /env{i}/scene         foxglove.SceneUpdate       walls, boxes, circles, goal, robot, trail
+    /env{i}/odom          foxglove.Odometry          true pose and twist
+    /env{i}/odom_estimate foxglove.Odometry          odometry estimate (dead reckoning)
+    /env{i}/action        torchnav.Action            stamped at the state it was chosen in
+    /env{i}/reward        torchnav.Reward            stamped at the state it led to
+    /env{i}/events        torchnav.EpisodeEvent      start (with the world) / success / collision / timeout
+
+Crash safety: the metadata record and every chunk go to disk as soon as they are
+complete, and the chunk in progress is closed after every batch of steps in which
+an episode ended (and at least every ``flush_seconds``). A file cut short by
+SIGKILL has no summary section but is readable by scanning
+(:func:`torchnav.record.reader.read_recording`); SIGTERM, Ctrl-C and exceptions
+unwind through :meth:`EpisodeRecorder.close`, which writes a complete file.
+Write errors (full disk, unwritable path) are reported once as a warning and turn
+the recorder off; training goes on.
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import math
+import os
+import signal
+import threading
+import time
+import warnings
+import weakref
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+from . import scene
+from .schemas import action_schema, event_schema, foxglove_schema, reward_schema
+
+
+class RecordingWarning(UserWarning):
+    """Recording stopped (write error) or is incomplete; training is not affected."""
+
+
+_OPEN: "weakref.WeakSet[EpisodeRecorder]" = weakref.WeakSet()
+_SIG = {"installed": False, "previous": None, "pending": None}
+
+
+def _close_all() -> None:
+    for rec in list(_OPEN):
+        rec.close()
+
+
+atexit.register(_close_all)
+
+
+def _on_sigterm(signum, frame):  # noqa: ARG001
+    # Raise in the main thread so that ``with`` blocks and ``finally`` clauses unwind
+    # and close every recorder; never in the middle of a record write.
+    if any(r._writing for r in list(_OPEN)):
+        _SIG["pending"] = signum
+        return
+    raise SystemExit(128 + signum)
+
+
+def _install_sigterm() -> None:
+    if _SIG["installed"] or threading.current_thread() is not threading.main_thread():
+        return
+    prev = signal.getsignal(signal.SIGTERM)
+    if prev not in (signal.SIG_DFL, None):
+        return  # the application handles SIGTERM itself
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    _SIG.update(installed=True, previous=prev)
+
+
+def _uninstall_sigterm() -> None:
+    if _SIG["installed"] and not _OPEN and threading.current_thread() is threading.main_thread():
+        if signal.getsignal(signal.SIGTERM) is _on_sigterm:
+            signal.signal(signal.SIGTERM, _SIG["previous"])
+        _SIG["installed"] = False
+
+
+def _version() -> str:
+    from .. import __version__
+
+    return __version__
+
+
+class EpisodeRecorder:
+    """Record envs ``envs`` of a batched ``NavEnv`` to an MCAP file at ``path``.
+
+    Args:
+        path: output file (parent directories are created). An existing file is replaced.
+        env: the ``NavEnv`` whose steps are recorded (config, lidar layout, reward terms, dt).
+        envs: indices of the recorded envs in the batch.
+        metadata: extra entries of the ``torchnav`` metadata record (seed, checkpoint, ...);
+            values that are not strings are written as JSON.
+        episodes: stop recording an env after it has finished this many episodes (None: no limit).
+        flush_steps: steps buffered on the env's device before they are copied to the host
+            and encoded (one device->host copy per batch, not per step).
+        flush_seconds: close the chunk in progress at least this often (s of wall time).
+        on_error: ``"warn"`` (default: report once, stop recording, keep training) or ``"raise"``.
+        handle_sigterm: turn SIGTERM into ``SystemExit`` while a recorder is open, so the file is
+            completed (only if the application installed no SIGTERM handler of its own).
+
+    Use as a context manager, or call :meth:`close`. :meth:`write_step` takes one step
+    ``(B,)`` as returned by ``env.step`` (root keys before the step, ``"next"`` after),
+    with the env's ``NavState`` after the step for the world, odometry estimate and
+    applied twist; :func:`record_rollout` does this for you. :meth:`write_rollout`
+    takes a finished ``(B, T)`` rollout.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        env: Any,
+        envs: Iterable[int] = (0,),
+        metadata: Mapping[str, Any] | None = None,
+        *,
+        episodes: int | None = None,
+        flush_steps: int = 16,
+        flush_seconds: float = 10.0,
+        on_error: str = "warn",
+        handle_sigterm: bool = True,
+    ):
+        if on_error not in ("warn", "raise"):
+            raise ValueError(f"on_error must be 'warn' or 'raise', got {on_error!r}")
+        self.path = Path(path)
+        self.env = env
+        self.envs = [int(e) for e in envs]
+        if not self.envs or any(not 0 <= e < env.num_envs for e in self.envs):
+            raise ValueError(f"envs must be indices in [0, {env.num_envs}), got {self.envs}")
+        self.max_episodes = episodes
+        self.flush_steps = max(1, int(flush_steps))
+        self.flush_seconds = flush_seconds
+        self.on_error = on_error
+        self.error: str | None = None
+        self.enabled = True
+        self._writing = False
+        self._closed = False
+        self._buffer: list[TensorDictBase] = []
+        self._last_flush = time.monotonic()
+        self._idx = torch.tensor(self.envs, device=env.device)
+        self.dt_ns = int(round(env.cfg.robot.dt * 1e9))
+        self.term_names = tuple(env.task.term_names)
+        self.lidar = env.task.params.lidar
+        self.streams = [scene.EnvStream(i, env, self) for i in self.envs]
+        self._writer = None
+        self._file = None
+        self._guard(self._open, metadata or {})
+        if self.enabled:
+            _OPEN.add(self)
+            if handle_sigterm:
+                _install_sigterm()
+
+    # -- file ------------------------------------------------------------------------------
+
+    def _open(self, metadata: Mapping[str, Any]) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "wb")
+        self._writer = Writer(self._file, compression=CompressionType.ZSTD, chunk_size=1 << 20)
+        self._writer.start(profile="", library=f"torchnav {_version()}")
+        schemas = {
+            "tf": foxglove_schema("FrameTransforms"), "scan": foxglove_schema("LaserScan"),
+            "scene": foxglove_schema("SceneUpdate"), "odom": foxglove_schema("Odometry"),
+            "action": action_schema(self.env.action_spec.shape[-1]), "reward": reward_schema(self.term_names),
+            "events": event_schema(),
+        }
+        sid = {k: self._writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode()) for k, s in schemas.items()}
+        for st in self.streams:
+            st.channels = {
+                name: self._writer.register_channel(f"/env{st.env}/{name}", "json", sid["odom" if name == "odom_estimate" else name])
+                for name in ("tf", "scan", "scene", "odom", "odom_estimate", "action", "reward", "events")
+            }
+        self._writer.add_metadata("torchnav", self._metadata(metadata))
+        self._flush_file()
+
+    def _metadata(self, extra: Mapping[str, Any]) -> dict[str, str]:
+        from ..config import to_dict
+
+        cfg, li = self.env.cfg, self.lidar
+        meta = {
+            "version": _version(), "map": str(cfg.map), "seed": "", "checkpoint": "",
+            "config": json.dumps(to_dict(cfg), default=str),
+            "envs": json.dumps(self.envs), "num_envs": str(self.env.num_envs), "dt": repr(cfg.robot.dt),
+            "lidar": json.dumps({"n_rays": li.n_rays, "fov": li.fov, "min_range": li.min_range, "max_range": li.max_range,
+                                 "offset": list(li.offset), "angles": li.angles()}),
+            "robot_radius": repr(cfg.robot.radius), "goal_tolerance": repr(cfg.goal_tolerance),
+            "reward_terms": json.dumps(list(self.term_names)), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
+        for k, v in extra.items():
+            meta[str(k)] = v if isinstance(v, str) else json.dumps(v, default=str)
+        return meta
+
+    def _flush_file(self) -> None:
+        self._writer.flush()  # closes the chunk in progress and flushes the stream
+
+    def _guard(self, fn: Callable, *args: Any) -> Any:
+        """Run a file operation; on OSError report once and switch recording off."""
+        if not self.enabled:
+            return None
+        self._writing = True
+        try:
+            return fn(*args)
+        except OSError as e:
+            self._fail(e)
+            return None
+        finally:
+            self._writing = False
+            if _SIG["pending"] is not None:
+                signum, _SIG["pending"] = _SIG["pending"], None
+                raise SystemExit(128 + signum)
+
+    def _fail(self, e: BaseException) -> None:
+        self.error = f"{type(e).__name__}: {e}"
+        self.enabled = False
+        _OPEN.discard(self)
+        try:
+            if self._file is not None:
+                self._file.close()
+        except OSError:
+            pass
+        msg = (f"torchnav.record: recording to {self.path} stopped ({self.error}); "
+               "the run goes on, and the file keeps the episodes flushed before the error")
+        if self.on_error == "raise":
+            raise e
+        warnings.warn(msg, RecordingWarning, stacklevel=3)
+
+    # -- public API --------------------------------------------------------------------------
+
+    @property
+    def finished(self) -> bool:
+        """True once every recorded env has finished ``episodes`` episodes (never without a limit)."""
+        return self.max_episodes is not None and all(s.finished_episodes >= self.max_episodes for s in self.streams)
+
+    @property
+    def steps_written(self) -> dict[int, int]:
+        """Steps written so far per recorded env (buffered steps not included)."""
+        return {s.env: s.steps_written for s in self.streams}
+
+    def write_step(self, td: TensorDictBase, state: Any | None = None) -> None:
+        """Buffer one step ``(B,)``: root keys before it, ``("next", ...)`` after it.
+
+        ``state``: the env's ``NavState`` right after ``env.step`` (before any reset), for
+        the episode's world, the odometry estimate and the applied twist. Without it the
+        world is the map's fixed obstacles, the twist is the commanded one and no
+        odometry estimate is written.
+        """
+        if not self.enabled or self.finished:
+            return
+        self._buffer.append(self._select(td, state))
+        if len(self._buffer) >= self.flush_steps:
+            self._drain()
+
+    def write_rollout(self, td: TensorDictBase, states: Iterable[Any] | None = None) -> None:
+        """Write a rollout ``(B, T)`` (``env.rollout(..., break_when_any_done=False)`` layout).
+
+        A rollout carries no world: episodes are drawn with the map's fixed obstacles
+        only (random boxes and circles are re-placed at every reset); use
+        :func:`record_rollout` to record them. ``states`` optionally gives the
+        ``NavState`` after each step.
+        """
+        if td.batch_dims == 1:
+            td = td.unsqueeze(-1)
+        states = list(states) if states is not None else [None] * td.shape[1]
+        for t in range(td.shape[1]):
+            if not self.enabled or self.finished:
+                break
+            self._buffer.append(self._select(td[:, t], states[t]))
+            if len(self._buffer) >= self.flush_steps:
+                self._drain()
+        self._drain()
+
+    def flush(self) -> None:
+        """Encode buffered steps and put everything written so far on disk."""
+        self._drain(force_flush=True)
+
+    def close(self) -> None:
+        """Write buffered steps and the summary; the file is complete afterwards. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.enabled:
+            self._drain()
+            self._guard(self._finish)
+        _OPEN.discard(self)
+        _uninstall_sigterm()
+
+    def _finish(self) -> None:
+        self._writer.finish()
+        self._file.close()
+        self.enabled = False
+
+    def __enter__(self) -> "EpisodeRecorder":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- internals -------------------------------------------------------------------------------
+
+    def _select(self, td: TensorDictBase, state: Any | None) -> TensorDictBase:
+        """The recorded envs' slice of one step, still on the env's device."""
+        idx, nxt = self._idx, td.get("next")
+        terms = nxt.get("reward_terms")
+        ep = nxt.get("episode")
+        out = {
+            "pose0": td.get("pose"), "ranges0": td.get("ranges"), "goal": td.get("goal"), "action": td.get("action"),
+            "pose1": nxt.get("pose"), "ranges1": nxt.get("ranges"),
+            "reward": nxt.get("reward")[..., 0], "radius": nxt.get("curriculum_radius")[..., 0],
+            "success": nxt.get("success")[..., 0], "collision": nxt.get("collision")[..., 0],
+            "terminated": nxt.get("terminated")[..., 0], "truncated": nxt.get("truncated")[..., 0],
+            "ret": ep.get("return")[..., 0], "path": ep.get("path_length")[..., 0], "straight": ep.get("straight_line")[..., 0],
+        }
+        if self.term_names:
+            out["terms"] = torch.cat([terms.get(k) for k in self.term_names], -1)
+        if state is not None:
+            w = state.world
+            out.update(odom1=state.sim.odom, vel1=state.sim.vel, segments=w.segments, segment_mask=w.segment_mask,
+                       circles=w.circles, circle_mask=w.circle_mask, boxes=w.boxes, box_mask=w.box_mask)
+        else:
+            out["vel1"] = self.env.task.command(td.get("action"))
+        return TensorDict({k: v.index_select(0, idx).detach() for k, v in out.items()}, batch_size=[len(self.envs)])
+
+    def _drain(self, force_flush: bool = False) -> None:
+        if not self.enabled:
+            self._buffer.clear()
+            return
+        if self._buffer:
+            batch = torch.stack(self._buffer, dim=1).cpu()  # (E, T): one device->host copy
+            self._buffer = []
+            arrays = {k: v.numpy() for k, v in batch.items()}
+            ended = self._guard(self._encode, arrays)
+            if ended:
+                force_flush = True
+        if force_flush or time.monotonic() - self._last_flush > self.flush_seconds:
+            self._guard(self._flush_file)
+            self._last_flush = time.monotonic()
+
+    def _encode(self, a: dict[str, np.ndarray]) -> bool:
+        """Encode steps ``(E, T)`` time-major; True if an episode ended among them."""
+        ended = False
+        n_steps = next(iter(a.values())).shape[1]
+        for t in range(n_steps):
+            for e, st in enumerate(self.streams):
+                ended |= st.step({k: v[e, t] for k, v in a.items()})
+        return ended
+
+    def _add(self, channel: int, t_ns: int, payload: str) -> None:
+        self._writer.add_message(channel, log_time=t_ns, data=payload.encode(), publish_time=t_ns)
+
+
+@torch.no_grad()
+def record_rollout(
+    env: Any,
+    policy: Callable[[TensorDictBase], TensorDictBase] | None,
+    max_steps: int,
+    recorder: EpisodeRecorder | None = None,
+    tensordict: TensorDictBase | None = None,
+    stack: bool = True,
+) -> TensorDictBase | list[TensorDictBase]:
+    """``env.rollout(max_steps, policy, break_when_any_done=False)`` that also records.
+
+    Steps the env itself so that the recorder sees the state after each step and
+    before the auto-reset (the episode's world, odometry estimate, applied twist).
+    With ``recorder=None`` it is a plain rollout: recording costs nothing when off.
+    Stops early once ``recorder.finished`` (its ``episodes`` limit is reached).
+    ``policy=None`` takes random actions. Returns the ``(B, T)`` rollout (or the list
+    of ``(B,)`` steps with ``stack=False``).
+    """
+    from torchrl.envs.utils import step_mdp
+
+    td = env.reset() if tensordict is None else tensordict
+    steps = []
+    for i in range(max_steps):
+        if policy is None:
+            td = env.rand_action(td)
+        else:
+            td.update(policy(td))
+        td = env.step(td)
+        if recorder is not None:
+            recorder.write_step(td, env.state)
+        steps.append(td)
+        if i == max_steps - 1 or (recorder is not None and recorder.finished):
+            break
+        td = env.maybe_reset(step_mdp(td))
+    if recorder is not None:
+        recorder.flush()
+    return torch.stack(steps, dim=env.batch_dims) if stack else steps

@@ -1,0 +1,177 @@
+"""Summarise a recording and render an episode to GIF or MP4, without Foxglove.
+
+Usage::
+
+    python -m torchnav.record.replay FILE.mcap                      # summary of episodes
+    python -m torchnav.record.replay FILE.mcap --out ep.gif         # animate the first episode
+    python -m torchnav.record.replay FILE.mcap --env 0 --episode 2 --out ep.mp4 --fps 20 --stride 2
+
+MP4 needs ffmpeg on the PATH; GIF needs only Pillow (a matplotlib dependency).
+The animation shows the map with the episode's obstacles, the robot, its lidar
+rays, the goal and the trail, next to the reward of every step and the return.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .reader import Episode, Recording, read_recording
+
+
+def summary(rec: Recording) -> str:
+    """A text table of the recording's metadata and episodes."""
+    info = rec.info
+    lines = [f"{rec.path}  ({'complete' if rec.complete else 'no summary: the writer was stopped; recovered what was flushed'})"]
+    lines.append("  " + "  ".join(f"{k}={info[k]}" for k in ("map", "seed", "checkpoint", "version", "dt") if info.get(k)))
+    eps = rec.episodes()
+    lines.append(f"  {len(eps)} episodes, {len(rec.messages)} messages")
+    lines.append(f"  {'env':>4} {'ep':>4} {'outcome':>10} {'steps':>6} {'return':>9} {'start [s]':>10}")
+    for e in eps:
+        lines.append(f"  {e.env:>4} {e.episode:>4} {e.outcome:>10} {e.steps:>6} {e.ret:>9.2f} {e.start_time / 1e9:>10.1f}")
+    outcomes = [e.outcome for e in eps if e.outcome != "incomplete"]
+    if outcomes:
+        rates = ", ".join(f"{k} {outcomes.count(k) / len(outcomes):.0%}" for k in ("success", "collision", "timeout"))
+        lines.append(f"  finished episodes: {len(outcomes)} ({rates})")
+    return "\n".join(lines)
+
+
+def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
+    """Arrays of one episode: ``time (N,)`` s, ``pose (N, 3)``, ``ranges (N, R)``, ``reward (N,)`` (0 at the start frame)."""
+    t0, t1 = ep.start_time, ep.end_time
+    odom = rec.topic(f"/env{ep.env}/odom", t0, t1)
+    scans = {m.log_time: m.data["ranges"] for m in rec.topic(f"/env{ep.env}/scan", t0, t1)}
+    rewards = {m.log_time: m.data["reward"] for m in rec.topic(f"/env{ep.env}/reward", t0, t1)}
+    pose, ranges, reward, times = [], [], [], []
+    for m in odom:
+        p = m.data["pose"]
+        q = p["orientation"]
+        pose.append((p["position"]["x"], p["position"]["y"], 2 * math.atan2(q["z"], q["w"])))
+        ranges.append(scans.get(m.log_time, []))
+        reward.append(rewards.get(m.log_time, 0.0))
+        times.append((m.log_time - t0) / 1e9)
+    return {"time": np.asarray(times), "pose": np.asarray(pose).reshape(-1, 3), "ranges": np.asarray(ranges, dtype=float),
+            "reward": np.asarray(reward)}
+
+
+def _lidar(info: dict):
+    from ..sim.params import LidarParams
+
+    li = info.get("lidar") or {}
+    return LidarParams(n_rays=int(li.get("n_rays", 20)), fov=float(li.get("fov", math.pi)), min_range=float(li.get("min_range", 0.0)),
+                       max_range=float(li.get("max_range", 10.0)), offset=tuple(li.get("offset", (0.0, 0.0, 0.0))))
+
+
+def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10.0, stride: int = 1, dpi: int = 80) -> Path:
+    """Animate episode ``ep`` of ``rec`` to ``out`` (.gif with Pillow, .mp4 with ffmpeg)."""
+    from matplotlib import animation
+    from matplotlib.figure import Figure
+
+    from ..render import draw_goal, draw_obstacles, draw_rays, draw_robots
+
+    out = Path(out)
+    info = rec.info
+    lidar = _lidar(info)
+    radius = float(info.get("robot_radius", 0.2))
+    tol = float(info.get("goal_tolerance", 0.3))
+    fr = episode_frames(rec, ep)
+    if len(fr["pose"]) == 0:
+        raise ValueError(f"episode {ep.episode} of env {ep.env} has no frames in {rec.path}")
+    world = ep.start["world"]
+    goal = np.asarray(ep.start["goal"])[None]
+    idx = list(range(0, len(fr["pose"]), max(1, stride)))
+    if idx[-1] != len(fr["pose"]) - 1:
+        idx.append(len(fr["pose"]) - 1)
+
+    fig = Figure(figsize=(9, 4.5), dpi=dpi)
+    ax, axr = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    axr2 = axr.twinx()
+    pts = np.concatenate([np.asarray(world["segments"]).reshape(-1, 2), fr["pose"][:, :2], goal])
+    lo, hi = pts.min(0) - 0.5, pts.max(0) + 0.5
+    cum = np.cumsum(fr["reward"])
+
+    def draw(k: int):
+        i = idx[k]
+        ax.clear()
+        draw_obstacles(ax, world["segments"], world["circles"], world["boxes"])
+        draw_goal(ax, goal, env=0, radius=tol)
+        ax.plot(fr["pose"][: i + 1, 0], fr["pose"][: i + 1, 1], "-", color="tab:blue", lw=1.2, alpha=0.7)
+        if fr["ranges"].ndim == 2 and fr["ranges"].shape[1] == lidar.n_rays:
+            draw_rays(ax, fr["pose"][i : i + 1], fr["ranges"][i : i + 1], lidar, env=0)
+        draw_robots(ax, fr["pose"][i : i + 1], radius, env=0)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_aspect("equal")
+        ax.set_title(f"env {ep.env} episode {ep.episode}: {ep.outcome}  t={fr['time'][i]:.1f} s", fontsize=9)
+        axr.clear()
+        axr.plot(fr["time"], fr["reward"], color="0.6", lw=1, label="reward")
+        axr.plot(fr["time"][: i + 1], fr["reward"][: i + 1], color="tab:red", lw=1.2)
+        axr2.clear()
+        axr2.plot(fr["time"][: i + 1], cum[: i + 1], color="tab:purple", lw=1.2)
+        axr2.set_ylim(min(cum.min(), 0) - 1e-3, max(cum.max(), 0) + 1e-3)
+        axr2.set_ylabel("return", color="tab:purple", fontsize=8)
+        axr.axvline(fr["time"][i], color="k", lw=0.8)
+        axr.set_xlabel("time in episode [s]")
+        axr.set_ylabel("reward per step", color="tab:red", fontsize=8)
+        axr.set_xlim(0, max(fr["time"][-1], 1e-3))
+        return []
+
+    draw(len(idx) - 1)
+    fig.tight_layout()
+    anim = animation.FuncAnimation(fig, draw, frames=len(idx), blit=False)
+    if out.suffix.lower() == ".gif":
+        writer = animation.PillowWriter(fps=fps)
+    elif out.suffix.lower() in (".mp4", ".m4v", ".mov"):
+        if not animation.FFMpegWriter.isAvailable():
+            raise RuntimeError("MP4 output needs ffmpeg on the PATH; install it, or write a .gif instead")
+        writer = animation.FFMpegWriter(fps=fps)
+    else:
+        raise ValueError(f"unknown animation format {out.suffix!r}: use .gif or .mp4")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    anim.save(str(out), writer=writer, dpi=dpi)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m torchnav.record.replay", description=__doc__.split("\n\n")[0])
+    ap.add_argument("file", help="recording (.mcap)")
+    ap.add_argument("--out", help="write an animation of one episode (.gif or .mp4)")
+    ap.add_argument("--env", type=int, default=None, help="env index (default: the first recorded)")
+    ap.add_argument("--episode", type=int, default=0, help="episode number of that env (default 0)")
+    ap.add_argument("--fps", type=float, default=10.0)
+    ap.add_argument("--stride", type=int, default=1, help="draw every n-th step")
+    ap.add_argument("--dpi", type=int, default=80)
+    ap.add_argument("--json", action="store_true", help="print the episodes as JSON lines instead of a table")
+    args = ap.parse_args(argv)
+    try:
+        rec = read_recording(args.file)
+    except FileNotFoundError:
+        print(f"error: no such file: {args.file}", file=sys.stderr)
+        return 2
+    eps = rec.episodes()
+    if args.json:
+        for e in eps:
+            print(json.dumps({"env": e.env, "episode": e.episode, "outcome": e.outcome, "steps": e.steps, "return": e.ret,
+                              "start_time": e.start_time / 1e9}))
+    else:
+        print(summary(rec))
+    if args.out:
+        env = args.env if args.env is not None else (eps[0].env if eps else 0)
+        match = [e for e in eps if e.env == env and e.episode == args.episode]
+        if not match:
+            have = sorted({(e.env, e.episode) for e in eps})
+            print(f"error: no episode {args.episode} of env {env} in {args.file}; have (env, episode) {have}", file=sys.stderr)
+            return 2
+        path = render_episode(rec, match[0], args.out, fps=args.fps, stride=args.stride, dpi=args.dpi)
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

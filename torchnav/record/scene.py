@@ -1,0 +1,206 @@
+"""Per-env message encoding: one ``EnvStream`` turns one env's steps into JSON messages.
+
+Kept free of tensors: it receives numpy rows of one step of one env (see
+``EpisodeRecorder._select`` for the keys). The static part of the scene (walls,
+boxes, circles, goal) is encoded once per episode and spliced into every step's
+``SceneUpdate``, so a step costs a handful of small ``json.dumps``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+WALL_HEIGHT = 0.5  # m, only for the 3D view
+ROBOT_HEIGHT = 0.25  # m
+COLORS = {
+    "wall": (0.25, 0.25, 0.25, 1.0), "box": (0.55, 0.55, 0.55, 1.0), "circle": (0.55, 0.55, 0.55, 1.0),
+    "goal": (0.2, 0.75, 0.3, 0.6), "robot": (0.12, 0.47, 0.71, 1.0), "trail": (0.12, 0.47, 0.71, 0.8),
+    "arrow": (0.0, 0.0, 0.0, 1.0),
+}
+_EMPTY = {"arrows": [], "cubes": [], "spheres": [], "cylinders": [], "lines": [], "triangles": [], "texts": [], "models": []}
+
+
+def stamp(ns: int) -> dict:
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def color(name: str) -> dict:
+    r, g, b, a = COLORS[name]
+    return {"r": r, "g": g, "b": b, "a": a}
+
+
+def pose(x: float, y: float, yaw: float = 0.0, z: float = 0.0) -> dict:
+    return {"position": {"x": x, "y": y, "z": z}, "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}}
+
+
+def _f(x: Any) -> float:
+    return round(float(x), 6)
+
+
+def _rows(a: np.ndarray, mask: np.ndarray) -> list[list[float]]:
+    return np.round(a[mask].astype(np.float64), 6).tolist()
+
+
+def entity(ns: int, frame: str, ident: str, **prims: list) -> dict:
+    return {"timestamp": stamp(ns), "frame_id": frame, "id": ident, "lifetime": {"sec": 0, "nsec": 0},
+            "frame_locked": False, "metadata": [], **_EMPTY, **prims}
+
+
+class EnvStream:
+    """Encoder state of one recorded env: clock, episode counters, trail, static scene."""
+
+    MAX_TRAIL = 256  # points; longer trails keep every 2nd, 4th, ... point
+
+    def __init__(self, env_index: int, env: Any, rec: Any):
+        self.env = env_index
+        self.rec = rec
+        self.channels: dict[str, int] = {}
+        self.frame = f"env{env_index}/world"
+        self.base = f"env{env_index}/base_link"
+        self.laser = f"env{env_index}/laser"
+        self.radius = float(env.cfg.robot.radius)
+        self.goal_tol = float(env.cfg.goal_tolerance)
+        li = env.task.params.lidar
+        ang = li.angles()
+        self.scan_head = {"frame_id": self.laser, "pose": pose(0.0, 0.0), "start_angle": ang[0], "end_angle": ang[-1]}
+        self.laser_tf = (li.offset[0], li.offset[1], li.offset[2])
+        self.base_world = env.task.base_world  # fallback world: the map's fixed obstacles
+        self.clock = 0  # ticks of dt
+        self.episode = -1
+        self.in_episode = False
+        self.ep_step = 0
+        self.ep_return = 0.0
+        self.finished_episodes = 0
+        self.steps_written = 0
+        self.static = ""
+        self.trail: list[str] = []
+        self.trail_stride = 1
+
+    @property
+    def t(self) -> int:
+        return self.clock * self.rec.dt_ns
+
+    def _add(self, name: str, msg: dict | str) -> None:
+        self.rec._add(self.channels[name], self.t, msg if isinstance(msg, str) else json.dumps(msg))
+
+    # -- one step ---------------------------------------------------------------------------
+
+    def step(self, r: dict[str, np.ndarray]) -> bool:
+        """Encode one step of this env; True if its episode ended here."""
+        lim = self.rec.max_episodes
+        if lim is not None and self.finished_episodes >= lim:
+            return False
+        if not self.in_episode:
+            self._start(r)
+        v1, w1 = float(r["vel1"][0]), float(r["vel1"][1])
+        self._add("action", {"env": self.env, "episode": self.episode, "step": self.ep_step,
+                             "v": _f(v1), "omega": _f(w1), "action": [_f(x) for x in r["action"]]})
+        self.clock += 1
+        self.ep_step += 1
+        self.steps_written += 1
+        p1 = r["pose1"]
+        self._frame(p1, r["ranges1"], (v1, w1), r.get("odom1"))
+        reward = float(r["reward"])
+        self.ep_return = float(r["ret"])
+        terms = {k: _f(x) for k, x in zip(self.rec.term_names, r["terms"])} if "terms" in r else {}
+        success, collision = bool(r["success"]), bool(r["collision"])
+        self._add("reward", {
+            "env": self.env, "episode": self.episode, "step": self.ep_step, "reward": _f(reward), "return": _f(self.ep_return),
+            "v": _f(v1), "omega": _f(w1), "terms": terms, "curriculum_radius": _f(r["radius"]),
+            "goal_distance": _f(math.hypot(p1[0] - self.goal[0], p1[1] - self.goal[1])), "success": success, "collision": collision,
+        })
+        if bool(r["terminated"]) or bool(r["truncated"]):
+            kind = "success" if success else "collision" if collision else "timeout"
+            self._add("events", {"env": self.env, "episode": self.episode, "event": kind, "steps": self.ep_step,
+                                 "return": _f(self.ep_return), "path_length": _f(r["path"]), "straight_line": _f(r["straight"])})
+            self.in_episode = False
+            self.finished_episodes += 1
+            self.clock += 1  # the reset takes one tick, so the next start is strictly later
+            return True
+        return False
+
+    def _start(self, r: dict[str, np.ndarray]) -> None:
+        self.episode += 1
+        self.in_episode = True
+        self.ep_step, self.ep_return = 0, 0.0
+        self.goal = (float(r["goal"][0]), float(r["goal"][1]))
+        if "segments" in r:
+            world = {k: r[k] for k in ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask")}
+            fixed_only = False
+        else:
+            bw = self.base_world
+            world = {k: getattr(bw, k)[self.env].detach().cpu().numpy() for k in
+                     ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask")}
+            fixed_only = True
+        seg = _rows(world["segments"], world["segment_mask"])
+        cir = _rows(world["circles"], world["circle_mask"])
+        box = _rows(world["boxes"], world["box_mask"])
+        self.static = ",".join(json.dumps(e) for e in self._static_entities(seg, cir, box))
+        self.trail, self.trail_stride = [], 1
+        p0 = r["pose0"]
+        self._add("events", {"env": self.env, "episode": self.episode, "event": "start",
+                             "start": [_f(x) for x in p0], "goal": [_f(x) for x in self.goal],
+                             "world": {"segments": seg, "circles": cir, "boxes": box, "fixed_only": fixed_only}})
+        self._frame(p0, r["ranges0"], (0.0, 0.0), p0 if "odom1" in r else None)
+
+    def _static_entities(self, seg: list, cir: list, box: list) -> list[dict]:
+        t = self.t
+        pts = [{"x": x, "y": y, "z": 0.0} for s in seg for x, y in ((s[0], s[1]), (s[2], s[3]))]
+        walls = {"type": 2, "pose": pose(0.0, 0.0), "thickness": 0.05, "scale_invariant": False, "points": pts,
+                 "color": color("wall"), "colors": [], "indices": []}
+        cubes = [{"pose": pose(b[0], b[1], b[4], WALL_HEIGHT / 2), "size": {"x": 2 * b[2], "y": 2 * b[3], "z": WALL_HEIGHT},
+                  "color": color("box")} for b in box]
+        cyls = [{"pose": pose(c[0], c[1], 0.0, WALL_HEIGHT / 2), "size": {"x": 2 * c[2], "y": 2 * c[2], "z": WALL_HEIGHT},
+                 "bottom_scale": 1.0, "top_scale": 1.0, "color": color("circle")} for c in cir]
+        gx, gy = self.goal
+        goal = {"pose": pose(gx, gy, 0.0, 0.01), "size": {"x": 2 * self.goal_tol, "y": 2 * self.goal_tol, "z": 0.02},
+                "bottom_scale": 1.0, "top_scale": 1.0, "color": color("goal")}
+        return [
+            entity(t, self.frame, "walls", lines=[walls] if pts else []),
+            entity(t, self.frame, "boxes", cubes=cubes),
+            entity(t, self.frame, "circles", cylinders=cyls),
+            entity(t, self.frame, "goal", cylinders=[goal]),
+        ]
+
+    def _frame(self, p: np.ndarray, ranges: np.ndarray, vel: tuple[float, float], odom: np.ndarray | None) -> None:
+        """tf, scan, scene and odometry of the state at the current tick."""
+        x, y, yaw = _f(p[0]), _f(p[1]), _f(p[2])
+        ts = stamp(self.t)
+        ox, oy, oyaw = self.laser_tf
+        self._add("tf", {"transforms": [
+            {"timestamp": ts, "parent_frame_id": self.frame, "child_frame_id": self.base,
+             "translation": {"x": x, "y": y, "z": 0.0}, "rotation": pose(0, 0, yaw)["orientation"]},
+            {"timestamp": ts, "parent_frame_id": self.base, "child_frame_id": self.laser,
+             "translation": {"x": ox, "y": oy, "z": ROBOT_HEIGHT}, "rotation": pose(0, 0, oyaw)["orientation"]},
+        ]})
+        self._add("scan", {"timestamp": ts, **self.scan_head, "ranges": np.round(ranges.astype(np.float64), 5).tolist(), "intensities": []})
+        # trail: keep every stride-th point, halving the resolution when it grows too long
+        if self.ep_step % self.trail_stride == 0:
+            self.trail.append(f'{{"x":{x},"y":{y},"z":0.02}}')
+            if len(self.trail) > self.MAX_TRAIL:
+                self.trail, self.trail_stride = self.trail[::2], self.trail_stride * 2
+        robot = entity(self.t, self.frame, "robot", cylinders=[{
+            "pose": pose(x, y, yaw, ROBOT_HEIGHT / 2), "size": {"x": 2 * self.radius, "y": 2 * self.radius, "z": ROBOT_HEIGHT},
+            "bottom_scale": 1.0, "top_scale": 1.0, "color": color("robot")}], arrows=[{
+            "pose": pose(x, y, yaw, ROBOT_HEIGHT + 0.01), "shaft_length": self.radius, "shaft_diameter": 0.04,
+            "head_length": 0.1, "head_diameter": 0.1, "color": color("arrow")}])
+        last = f'{{"x":{x},"y":{y},"z":0.02}}'
+        trail = json.dumps(entity(self.t, self.frame, "trail", lines=[{
+            "type": 0, "pose": pose(0.0, 0.0), "thickness": 0.04, "scale_invariant": False, "points": "@PTS@",
+            "color": color("trail"), "colors": [], "indices": []}])).replace('"@PTS@"', "[" + ",".join(self.trail + [last]) + "]")
+        self._add("scene", '{"deletions":[],"entities":[' + self.static + "," + json.dumps(robot) + "," + trail + "]}")
+        lin = {"x": _f(vel[0]), "y": 0.0, "z": 0.0}
+        ang = {"x": 0.0, "y": 0.0, "z": _f(vel[1])}
+        zeros = [0.0] * 36
+        self._add("odom", {"timestamp": ts, "frame_id": self.frame, "body_frame_id": self.base, "pose": pose(x, y, yaw),
+                           "linear_velocity": lin, "angular_velocity": ang, "pose_covariance": zeros,
+                           "velocity_covariance": zeros, "metadata": []})
+        if odom is not None:
+            self._add("odom_estimate", {"timestamp": ts, "frame_id": self.frame, "body_frame_id": f"{self.base}_estimate",
+                                        "pose": pose(_f(odom[0]), _f(odom[1]), _f(odom[2])), "linear_velocity": lin,
+                                        "angular_velocity": ang, "pose_covariance": zeros, "velocity_covariance": zeros,
+                                        "metadata": []})
