@@ -1,0 +1,281 @@
+"""Shared helpers for the benchmarks in bench/: timing, peak memory, machine info, output.
+
+Import this module BEFORE torch (it sets ``TORCHINDUCTOR_COMPILE_THREADS=1``
+unless already set, so inductor's compile workers do not compete with the
+timed threads on a small CPU machine). The scripts are run as files
+(``python bench/sim_throughput.py``), so ``bench/`` is on ``sys.path``.
+
+Method, shared by every benchmark:
+
+* a run of ``steps`` calls is timed as a whole (``time.perf_counter``, with a
+  device synchronisation before and after on CUDA); ``warmup`` untimed calls
+  come first;
+* the run is repeated ``repeats`` times; the reported rate is the median of
+  the per-run rates, with the min and max as the spread;
+* compile time (first call of a compiled function, including its warm-up) is
+  measured separately and never enters a rate.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import gc
+import json
+import os
+import platform
+import resource
+import statistics
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
+
+import torch  # noqa: E402
+
+
+# -- device and threads -----------------------------------------------------------
+
+
+def resolve_devices(arg: str) -> list[str]:
+    """``--device`` value -> devices to run: ``cpu``, ``cuda``, or ``all`` (cpu, plus cuda if present)."""
+    if arg == "all":
+        return ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    if arg.startswith("cuda") and not torch.cuda.is_available():
+        raise SystemExit(f"--device {arg}: no CUDA device is available")
+    return [arg]
+
+
+def set_threads(n: int) -> None:
+    """Intra-op CPU threads for the timed work (``torch.set_num_threads``)."""
+    torch.set_num_threads(n)
+
+
+def sync(device: str | torch.device) -> None:
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def machine_info(device: str) -> dict[str, Any]:
+    """A short description of where the figures were taken."""
+    info: dict[str, Any] = {
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "cpu": _cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "threads": torch.get_num_threads(),
+        "loadavg_1m": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
+    }
+    if torch.device(device).type == "cuda":
+        info["gpu"] = torch.cuda.get_device_name(device)
+    return info
+
+
+def load_warning(device: str) -> str | None:
+    """A warning line when other processes are busy on this machine, else None.
+
+    Why it matters: with ``--threads`` equal to the number of cores, OpenMP worker
+    threads spin-wait after each parallel region; when another process holds a
+    core, the spinning worker and the main thread take turns by time slices and
+    eager CPU figures collapse (10-100x slower), not just degrade.
+    """
+    if torch.device(device).type != "cpu" or not hasattr(os, "getloadavg"):
+        return None
+    load, cpus = os.getloadavg()[0], os.cpu_count() or 1
+    if load < 0.5:
+        return None
+    return (f"   WARNING: 1-min load average {load:.2f} on {cpus} CPUs: other processes are running, so these CPU figures "
+            f"are not representative{' (and OpenMP spin-waiting with ' + str(torch.get_num_threads()) + ' threads makes them collapse)' if torch.get_num_threads() >= cpus else ''}")
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+# -- timing -------------------------------------------------------------------------------
+
+
+@dataclass
+class Timing:
+    """Rates of ``repeats`` timed runs of ``steps`` calls, each call worth ``items`` units (env-steps)."""
+
+    items_per_call: int
+    steps: int
+    seconds: list[float] = field(default_factory=list)
+
+    @property
+    def rates(self) -> list[float]:
+        return [self.items_per_call * self.steps / s for s in self.seconds]
+
+    @property
+    def median(self) -> float:
+        return statistics.median(self.rates)
+
+    @property
+    def min(self) -> float:
+        return min(self.rates)
+
+    @property
+    def max(self) -> float:
+        return max(self.rates)
+
+    @property
+    def call_us(self) -> float:
+        """Median wall time of one call in microseconds."""
+        return 1e6 * statistics.median(self.seconds) / self.steps
+
+
+def time_calls(
+    fn: Callable[[], Any],
+    *,
+    items_per_call: int,
+    steps: int,
+    repeats: int,
+    warmup: int,
+    device: str | torch.device,
+) -> Timing:
+    """Time ``fn()`` (which carries its own state between calls, e.g. in a closure).
+
+    ``warmup`` untimed calls, then ``repeats`` runs of ``steps`` calls, each run timed
+    as a whole with a synchronisation before and after on CUDA.
+    """
+    for _ in range(warmup):
+        fn()
+    sync(device)
+    t = Timing(items_per_call=items_per_call, steps=steps)
+    for _ in range(repeats):
+        sync(device)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            fn()
+        sync(device)
+        t.seconds.append(time.perf_counter() - t0)
+    return t
+
+
+def steps_for(num_envs: int, target_env_steps: float, lo: int, hi: int) -> int:
+    """Calls per timed run so that a run covers about ``target_env_steps`` env-steps, within [lo, hi]."""
+    return int(max(lo, min(hi, round(target_env_steps / max(num_envs, 1)))))
+
+
+# -- peak memory -----------------------------------------------------------------------------
+
+
+def _read_status_kib(key: str) -> int | None:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return None
+
+
+def _malloc_trim() -> None:
+    """Give freed heap memory back to the OS (glibc), so the RSS baseline is the live set."""
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
+class PeakMemory:
+    """Peak memory of the work done inside a ``with`` block, as an increase over its start.
+
+    * CUDA: ``torch.cuda.max_memory_allocated`` minus ``memory_allocated`` at the start
+      (bytes held by tensors; the caching allocator's reserve is not counted).
+    * CPU (Linux): the process resident-set high-water mark (``VmHWM``), reset at the
+      start by writing 5 to ``/proc/self/clear_refs``, minus the resident set at the
+      start (after ``gc.collect`` and ``malloc_trim``). Inputs allocated before the
+      block are not counted; temporaries and outputs are. Page granularity, and
+      allocator caching can hide reuse, so read it as an approximation.
+    * Fallback (no clear_refs): increase of ``getrusage(RUSAGE_SELF).ru_maxrss``,
+      which is 0 when an earlier part of the process already went higher.
+
+    After the block, ``bytes`` holds the figure and ``method`` names how it was taken.
+    """
+
+    def __init__(self, device: str | torch.device):
+        self.device = torch.device(device)
+        self.bytes: int = 0
+        self.method: str = ""
+
+    def __enter__(self) -> "PeakMemory":
+        gc.collect()
+        if self.device.type == "cuda":
+            sync(self.device)
+            torch.cuda.reset_peak_memory_stats(self.device)
+            self._base = torch.cuda.memory_allocated(self.device)
+            self.method = "cuda_max_memory_allocated_increase"
+            return self
+        _malloc_trim()
+        self._base_rss = _read_status_kib("VmRSS")
+        self._hwm_ok = False
+        try:
+            with open("/proc/self/clear_refs", "w") as f:
+                f.write("5")
+            self._hwm_ok = self._base_rss is not None and _read_status_kib("VmHWM") is not None
+        except OSError:
+            pass
+        if self._hwm_ok:
+            self.method = "cpu_rss_high_water_increase"
+        else:
+            self._base_maxrss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            self.method = "cpu_ru_maxrss_increase"
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.device.type == "cuda":
+            sync(self.device)
+            self.bytes = int(torch.cuda.max_memory_allocated(self.device) - self._base)
+        elif self._hwm_ok:
+            self.bytes = 1024 * max(0, (_read_status_kib("VmHWM") or 0) - self._base_rss)
+        else:
+            self.bytes = 1024 * max(0, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - self._base_maxrss)
+
+
+# -- output ----------------------------------------------------------------------------------
+
+
+def human_rate(x: float) -> str:
+    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if abs(x) >= scale:
+            return f"{x / scale:.2f}{unit}"
+    return f"{x:.1f}"
+
+
+def human_bytes(n: float) -> str:
+    for unit, scale in (("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if abs(n) >= scale:
+            return f"{n / scale:.1f}{unit}"
+    return f"{int(n)}B"
+
+
+def print_table(headers: list[str], rows: list[list[Any]], file=None) -> None:
+    """A plain left-aligned text table."""
+    file = file or sys.stdout
+    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    for k, r in enumerate(cells):
+        print("  ".join(c.rjust(w) if k and _numeric(c) else c.ljust(w) for c, w in zip(r, widths)).rstrip(), file=file)
+        if k == 0:
+            print("  ".join("-" * w for w in widths), file=file)
+    file.flush()
+
+
+def _numeric(s: str) -> bool:
+    return bool(s) and (s[0].isdigit() or s[0] in "-+.") and s not in ("-",)
+
+
+def emit_json(record: dict[str, Any]) -> None:
+    """One JSON object on one line of stdout."""
+    print(json.dumps(record, sort_keys=False), flush=True)

@@ -1,0 +1,416 @@
+"""Simulator throughput: env-steps/s of one full ``torchnav.sim.step`` on a standard load.
+
+Load (per env): one robot in a 10 x 10 m walled arena (4 wall segments), 4
+oriented boxes and 4 circles placed at random independently in every env, a
+20-ray lidar over 180 degrees with 10 m range; random start poses in free
+space, random twist commands. The step is kinematics + odometry + collision
+(disc clearance) + lidar, exactly ``torchnav.sim.step``.
+
+Modes (``--modes``, comma separated):
+
+* ``eager``             ``torchnav.sim.step`` as is (lidar reduction chosen
+                        automatically: unrolled for this load of 12 obstacle slots).
+* ``eager-batched``     the same stages composed here, with
+                        ``lidar_scan(..., unroll=False)`` (one ``(B, R, N)`` pass per
+                        obstacle kind, reduced by ``amin``).
+* ``compiled``          ``torch.compile`` of a function that calls ``step``.
+* ``compiled-batched``  ``torch.compile`` of the batched composition.
+* ``cudagraphs``        CUDA only: ``torch.compile(mode="reduce-overhead")`` of ``step``.
+
+Compile time is excluded from the rates and printed separately. See
+docs/performance.md for the method and what each figure means.
+
+    python bench/sim_throughput.py                      # full table, CPU (2 threads) and CUDA if present
+    python bench/sim_throughput.py --json               # plus one JSON object per line
+    python bench/sim_throughput.py --quick              # seconds-long smoke run (eager modes only)
+    python bench/sim_throughput.py --sizes 4096 --modes eager,compiled --stages
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402  (sets TORCHINDUCTOR_COMPILE_THREADS before torch is imported)
+
+import torch  # noqa: E402
+
+from torchnav.sim import (  # noqa: E402
+    LidarParams,
+    SimParams,
+    SimState,
+    World,
+    apply_limits,
+    check_action,
+    check_world,
+    disc_clearance,
+    init_state,
+    integrate,
+    lidar_scan,
+    make_world,
+    step,
+)
+from torchnav.sim.step import step_odometry  # noqa: E402
+
+ALL_MODES = ("eager", "eager-batched", "compiled", "compiled-batched", "cudagraphs")
+DEFAULT_MODES = ("eager", "eager-batched", "compiled", "compiled-batched", "cudagraphs")
+DEFAULT_SIZES = (1, 64, 1024, 4096, 16384)
+QUICK_SIZES = (1, 64, 256)
+CPU_TARGET = (4096, 1_000_000)  # env-steps/s at 4,096 envs on 2 CPU threads
+CUDA_TARGET = 100_000_000  # env-steps/s at the best batch size on one H100
+
+ARENA_HALF = 5.0  # m: the arena spans [-5, 5] x [-5, 5]
+N_BOXES, N_CIRCLES = 4, 4
+LOAD = "arena 10x10 m, 4 walls + 4 boxes + 4 circles random per env, lidar 20 rays / 180 deg / 10 m"
+
+
+# -- the load ------------------------------------------------------------------------------------
+
+
+def bench_params() -> SimParams:
+    return SimParams(lidar=LidarParams(n_rays=20, fov=math.pi, max_range=10.0))
+
+
+def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | None = None) -> tuple[SimState, World, list[torch.Tensor]]:
+    """Initial state, per-env random world and a few batches of random actions for ``num_envs`` envs."""
+    params = params or bench_params()
+    g = torch.Generator().manual_seed(seed)
+    b = num_envs
+
+    def u(lo: float, hi: float, *shape: int) -> torch.Tensor:
+        return lo + (hi - lo) * torch.rand(*shape, generator=g)
+
+    h = ARENA_HALF
+    walls = [[-h, -h, h, -h], [h, -h, h, h], [h, h, -h, h], [-h, h, -h, -h]]
+    base = make_world(b, segments=walls)
+    boxes = torch.stack((u(-3.8, 3.8, b, N_BOXES), u(-3.8, 3.8, b, N_BOXES), u(0.2, 0.6, b, N_BOXES), u(0.15, 0.5, b, N_BOXES), u(-math.pi, math.pi, b, N_BOXES)), -1)
+    circles = torch.stack((u(-3.8, 3.8, b, N_CIRCLES), u(-3.8, 3.8, b, N_CIRCLES), u(0.15, 0.5, b, N_CIRCLES)), -1)
+    world = World(
+        segments=base.segments,
+        segment_mask=base.segment_mask,
+        circles=circles,
+        circle_mask=torch.ones(b, N_CIRCLES, dtype=torch.bool),
+        boxes=boxes,
+        box_mask=torch.ones(b, N_BOXES, dtype=torch.bool),
+        batch_size=[b],
+    )
+    # Start poses in free space: rejection sampling, all envs at once.
+    pose = torch.stack((u(-h, h, b), u(-h, h, b), u(-math.pi, math.pi, b)), -1)
+    margin = 0.05
+    for _ in range(200):
+        bad = disc_clearance(pose, world, params.robot_radius) <= margin
+        bad |= pose[:, :2].abs().amax(-1) > h - params.robot_radius - margin
+        n = int(bad.sum())
+        if n == 0:
+            break
+        pose[bad] = torch.stack((u(-h, h, n), u(-h, h, n), u(-math.pi, math.pi, n)), -1)
+    else:
+        raise RuntimeError("could not place every robot in free space")
+    actions = [torch.stack((u(params.v_min, params.v_max, b), u(-params.omega_max, params.omega_max, b)), -1) for _ in range(8)]
+    world = world.to(device)
+    state = init_state(pose.to(device), world, params)
+    return state, world, [a.to(device) for a in actions]
+
+
+# -- step functions --------------------------------------------------------------------------------
+
+
+def staged_step(state: SimState, action: torch.Tensor, world: World, params: SimParams, unroll: bool | None) -> SimState:
+    """``torchnav.sim.step`` (twist commands, no noise) composed stage by stage, with the lidar
+    reduction chosen by ``unroll``. ``unroll=None`` reproduces ``step`` exactly (checked by ``self_check``)."""
+    check_action(action, state)  # the same input checks as step, so per-call overheads compare fairly
+    check_world(world, state.pose.shape[0], state.pose.dtype, state.pose.device)
+    vel = apply_limits(action, state.vel, params)
+    pose = integrate(state.pose, vel, params)
+    odom = step_odometry(state.odom, vel, params, None)
+    clearance = disc_clearance(pose, world, params.robot_radius)
+    return SimState(
+        pose=pose,
+        vel=vel,
+        odom=odom,
+        ranges=lidar_scan(pose, world, params.lidar, None, unroll=unroll),
+        clearance=clearance,
+        collided=clearance <= 0,
+        time=state.time + params.dt,
+        batch_size=state.batch_size,
+        device=state.device,
+    )
+
+
+def step_fn(mode: str, params: SimParams, dynamic: bool) -> Callable[[SimState, torch.Tensor, World], SimState]:
+    batched = mode.endswith("-batched")
+
+    def fn(state: SimState, action: torch.Tensor, world: World) -> SimState:
+        if batched:
+            return staged_step(state, action, world, params, unroll=False)
+        return step(state, action, world, params)
+
+    if mode.startswith("eager"):
+        return fn
+    if mode == "cudagraphs":
+        return torch.compile(fn, mode="reduce-overhead", dynamic=dynamic)
+    return torch.compile(fn, dynamic=dynamic)
+
+
+def self_check(device: str) -> None:
+    """The composed stages match ``step`` (unroll=None) and the batched lidar matches the unrolled one."""
+    params = bench_params()
+    state, world, actions = make_load(33, device, seed=1)
+    ref = step(state, actions[0], world, params)
+    same = staged_step(state, actions[0], world, params, unroll=None)
+    for k in ("pose", "vel", "odom", "ranges", "clearance", "collided", "time"):
+        torch.testing.assert_close(getattr(same, k), getattr(ref, k), rtol=0, atol=0, msg=f"staged_step differs from step in {k}")
+    batched = staged_step(state, actions[0], world, params, unroll=False)
+    torch.testing.assert_close(batched.ranges, ref.ranges, rtol=1e-5, atol=1e-5)
+
+
+# -- timing ----------------------------------------------------------------------------------------
+
+
+def calibrate(call: Callable[[], Any], device: str, run_seconds: float, lo: int, hi: int) -> int:
+    """Calls per timed run so that a run lasts about ``run_seconds``."""
+    n, dt = 1, 0.0
+    while True:
+        common.sync(device)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            call()
+        common.sync(device)
+        dt = time.perf_counter() - t0
+        if dt >= min(0.05, run_seconds / 4) or n >= hi:
+            break
+        n *= 2
+    return int(max(lo, min(hi, math.ceil(run_seconds * n / max(dt, 1e-9)))))
+
+
+def bench_one(mode: str, num_envs: int, device: str, args: argparse.Namespace) -> dict[str, Any]:
+    params = bench_params()
+    state, world, actions = make_load(num_envs, device, seed=args.seed)
+    rec: dict[str, Any] = {
+        "bench": "sim_throughput", "device": device, "num_envs": num_envs, "mode": mode,
+        "env_steps_per_s": None, "env_steps_per_s_min": None, "env_steps_per_s_max": None, "step_us": None,
+        "compile_s": None, "peak_mem_bytes": None, "peak_mem_method": None,
+        "steps": None, "repeats": args.repeats, "threads": torch.get_num_threads(), "load": LOAD,
+    }
+    if mode.startswith("compiled") or mode == "cudagraphs":
+        if not args.dynamic or num_envs == args.sizes[0]:
+            torch._dynamo.reset()  # static shapes: a fresh compile per (mode, size)
+    fn = step_fn(mode, params, args.dynamic)
+    box = {"s": state, "i": 0}
+
+    def call() -> None:
+        if mode == "cudagraphs":
+            torch.compiler.cudagraph_mark_step_begin()
+        box["s"] = fn(box["s"], actions[box["i"] % len(actions)], world)
+        box["i"] += 1
+
+    try:
+        if not mode.startswith("eager"):
+            t0 = time.perf_counter()
+            call()  # compiles
+            for _ in range(2):  # cudagraphs records on the first calls after compilation
+                call()
+            common.sync(device)
+            rec["compile_s"] = round(time.perf_counter() - t0, 2)
+        for _ in range(args.warmup):
+            call()
+        steps = args.steps or calibrate(call, device, args.run_seconds, lo=3, hi=100_000)
+        t = common.time_calls(call, items_per_call=num_envs, steps=steps, repeats=args.repeats, warmup=0, device=device)
+        with common.PeakMemory(device) as mem:
+            for _ in range(3):
+                call()
+        rec.update(
+            env_steps_per_s=round(t.median, 1), env_steps_per_s_min=round(t.min, 1), env_steps_per_s_max=round(t.max, 1),
+            step_us=round(t.call_us, 2), steps=steps, peak_mem_bytes=mem.bytes, peak_mem_method=mem.method,
+        )
+        if not torch.isfinite(box["s"].pose).all():
+            rec["error"] = "non-finite pose after the timed steps"
+        elif not mode.startswith("eager"):
+            rec.update(_check_against_eager(fn, mode, box["s"], actions[0], world, params))
+    except Exception as e:  # noqa: BLE001 - one failing mode must not end the table
+        rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
+    return rec
+
+
+def _check_against_eager(fn, mode: str, state: SimState, action: torch.Tensor, world: World, params: SimParams) -> dict[str, Any]:
+    """One step of the compiled ``fn`` against eager ``step`` from the same state (after the timed steps).
+
+    Float32 op reordering moves poses by ~1e-6 m; a ray grazing an obstacle edge may flip
+    between hit and miss, so ranges are compared as the fraction of rays off by > 1 mm.
+    """
+    state = state.clone()  # cudagraphs: the carried state lives in memory the next replay overwrites
+    ref = step(state, action, world, params)
+    if mode == "cudagraphs":
+        torch.compiler.cudagraph_mark_step_begin()
+    got = fn(state, action, world).clone()
+    d = got.pose - ref.pose
+    d = torch.cat((d[:, :2], torch.remainder(d[:, 2:] + math.pi, 2 * math.pi) - math.pi), -1)  # heading wraps at +-pi
+    pose_err = float(d.abs().max())
+    frac = float(((got.ranges - ref.ranges).abs() > 1e-3).float().mean())
+    out: dict[str, Any] = {"check_pose_err": pose_err, "check_ranges_mismatch_frac": frac}
+    if not (pose_err <= 1e-3 and frac <= 1e-3):
+        out["error"] = f"{mode} disagrees with eager step: max pose error {pose_err:.2e}, rays off by > 1 mm {frac:.2%}"
+    return out
+
+
+# -- stage breakdown ---------------------------------------------------------------------------------
+
+
+def stage_breakdown(num_envs: int, device: str, args: argparse.Namespace, compiled: bool) -> list[dict[str, Any]]:
+    """Median time per call of each stage of the step at ``num_envs``, eager (and compiled)."""
+    params = bench_params()
+    state, world, actions = make_load(num_envs, device, seed=args.seed)
+    a = actions[0]
+    nxt = step(state, a, world, params)
+    stages: dict[str, Callable[[], Any]] = {
+        "kinematics (limits, pose, odometry)": lambda: (lambda v: (integrate(state.pose, v, params), step_odometry(state.odom, v, params, None)))(apply_limits(a, state.vel, params)),
+        "collision (disc_clearance)": lambda: disc_clearance(nxt.pose, world, params.robot_radius),
+        "lidar unroll=True": lambda: lidar_scan(nxt.pose, world, params.lidar, unroll=True),
+        "lidar unroll=False": lambda: lidar_scan(nxt.pose, world, params.lidar, unroll=False),
+        "full step": lambda: step(state, a, world, params),
+    }
+    out = []
+    for variant in ("eager", "compiled") if compiled else ("eager",):
+        for name, f in stages.items():
+            compile_s = None
+            if variant == "compiled":
+                torch._dynamo.reset()
+                f = torch.compile(f, dynamic=args.dynamic)
+                t0 = time.perf_counter()
+                f()
+                common.sync(device)
+                compile_s = round(time.perf_counter() - t0, 2)
+            for _ in range(args.warmup):
+                f()
+            steps = args.steps or calibrate(f, device, args.run_seconds / 2, lo=3, hi=100_000)
+            t = common.time_calls(f, items_per_call=num_envs, steps=steps, repeats=args.repeats, warmup=0, device=device)
+            out.append({"bench": "sim_stages", "device": device, "num_envs": num_envs, "mode": variant, "stage": name,
+                        "call_us": round(t.call_us, 2), "env_steps_per_s": round(t.median, 1), "compile_s": compile_s})
+    return out
+
+
+# -- main ----------------------------------------------------------------------------------------------
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")], default=None, help=f"comma-separated env counts (default {','.join(map(str, DEFAULT_SIZES))})")
+    p.add_argument("--modes", type=lambda s: s.split(","), default=None, help=f"comma-separated, from {','.join(ALL_MODES)} (default: all; cudagraphs on CUDA only)")
+    p.add_argument("--device", default="all", help="cpu, cuda, or all (cpu and, when present, cuda); default all")
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    p.add_argument("--steps", type=int, default=0, help="steps per timed run (default: calibrated to --run-seconds)")
+    p.add_argument("--run-seconds", type=float, default=0.4, help="target wall time of one timed run (default 0.4)")
+    p.add_argument("--repeats", type=int, default=5, help="timed runs per row; the median rate is reported (default 5)")
+    p.add_argument("--warmup", type=int, default=5, help="untimed steps before timing (default 5)")
+    p.add_argument("--dynamic", action=argparse.BooleanOptionalAction, default=False, help="torch.compile(dynamic=...) (default: static shapes, one compile per size)")
+    p.add_argument("--stages", action="store_true", help="also time each stage of the step (at 4096 envs or the largest size below)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print one JSON object per line as well as the tables")
+    p.add_argument("--quick", action="store_true", help="tiny sizes, few steps, eager modes only: a smoke test")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.sizes = args.sizes or list(QUICK_SIZES)
+        args.modes = args.modes or ["eager", "eager-batched"]
+        args.steps = args.steps or 5
+        args.repeats = min(args.repeats, 3)
+        args.warmup = min(args.warmup, 2)
+    args.sizes = args.sizes or list(DEFAULT_SIZES)
+    args.modes = args.modes or list(DEFAULT_MODES)
+    bad = [m for m in args.modes if m not in ALL_MODES]
+    if bad:
+        p.error(f"unknown mode(s) {bad}; choose from {ALL_MODES}")
+    return args
+
+
+def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
+    args = parse_args(argv)
+    common.set_threads(args.threads)
+    records: list[dict[str, Any]] = []
+    log = sys.stderr if args.json else sys.stdout  # with --json, stdout holds only JSON lines
+    for device in common.resolve_devices(args.device):
+        modes = [m for m in args.modes if m != "cudagraphs" or device.startswith("cuda")]
+        info = common.machine_info(device)
+        print(f"\n== sim_throughput on {device}: {LOAD}", file=log)
+        print("   " + ", ".join(f"{k}={v}" for k, v in info.items()), file=log)
+        warn = common.load_warning(device)
+        if warn:
+            print(warn, file=log)
+        if args.json:
+            common.emit_json({"bench": "sim_machine", "device": device, **info})
+        self_check(device)
+        rows, dev_records = [], []
+        for n in args.sizes:
+            for mode in modes:
+                rec = bench_one(mode, n, device, args)
+                dev_records.append(rec)
+                if args.json:
+                    common.emit_json(rec)
+                rows.append(_row(rec))
+                print(f"   {mode:>16} {n:>6} envs: " + (rec.get("error") or f"{common.human_rate(rec['env_steps_per_s'])} env-steps/s"), file=sys.stderr, flush=True)
+        print(file=log)
+        common.print_table(["mode", "envs", "env-steps/s", "min", "max", "us/step", "compile s", "peak mem", "steps x reps"], rows, file=log)
+        print(f"   peak mem: {dev_records[0]['peak_mem_method'] or 'n/a'} (over the 3 steps after timing)", file=log)
+        _ratios(dev_records, device, log)
+        records += dev_records
+        if args.stages:
+            n = max([s for s in args.sizes if s <= 4096] or [min(args.sizes)])
+            compiled = any(m.startswith("compiled") for m in modes)
+            st = stage_breakdown(n, device, args, compiled)
+            full = {r["mode"]: r["call_us"] for r in st if r["stage"] == "full step"}
+            print(f"\n   stage breakdown at {n} envs on {device} (median us per call; % of the full step of the same variant)", file=log)
+            common.print_table(
+                ["variant", "stage", "us/call", "% of step", "compile s"],
+                [[r["mode"], r["stage"], f"{r['call_us']:.1f}", f"{100 * r['call_us'] / full[r['mode']]:.0f}%", r["compile_s"] if r["compile_s"] is not None else "-"] for r in st],
+                file=log,
+            )
+            if args.json:
+                for r in st:
+                    common.emit_json(r)
+            records += st
+    return records
+
+
+def _row(rec: dict[str, Any]) -> list[Any]:
+    if rec.get("error"):
+        return [rec["mode"], rec["num_envs"], "ERROR", rec["error"][:60], "", "", "", "", ""]
+    return [
+        rec["mode"], rec["num_envs"], common.human_rate(rec["env_steps_per_s"]), common.human_rate(rec["env_steps_per_s_min"]),
+        common.human_rate(rec["env_steps_per_s_max"]), f"{rec['step_us']:.1f}", rec["compile_s"] if rec["compile_s"] is not None else "-",
+        common.human_bytes(rec["peak_mem_bytes"]), f"{rec['steps']}x{rec['repeats']}",
+    ]
+
+
+def _ratios(records: list[dict[str, Any]], device: str, log) -> None:
+    ok = [r for r in records if not r.get("error")]
+    rate = {(r["mode"], r["num_envs"]): r["env_steps_per_s"] for r in ok}
+    print("\n   ratios against eager at the same size (same run):", file=log)
+    for n in sorted({r["num_envs"] for r in ok}):
+        base = rate.get(("eager", n))
+        if not base:
+            continue
+        parts = [f"{m} x{rate[(m, n)] / base:.2f}" for m in ALL_MODES if m != "eager" and (m, n) in rate]
+        print(f"   {n:>6} envs: " + (", ".join(parts) or "(eager only)"), file=log)
+    if not ok:
+        return
+    if device.startswith("cuda"):
+        best = max(ok, key=lambda r: r["env_steps_per_s"])
+        print(f"   target (>= {common.human_rate(CUDA_TARGET)} env-steps/s at the best size on one GPU): best {common.human_rate(best['env_steps_per_s'])} "
+              f"({best['mode']}, {best['num_envs']} envs) = x{best['env_steps_per_s'] / CUDA_TARGET:.2f} of target", file=log)
+    else:
+        n, target = CPU_TARGET
+        at = [r for r in ok if r["num_envs"] == n]
+        if at:
+            best = max(at, key=lambda r: r["env_steps_per_s"])
+            print(f"   target (>= {common.human_rate(target)} env-steps/s at {n} envs, {torch.get_num_threads()} threads): best {common.human_rate(best['env_steps_per_s'])} "
+                  f"({best['mode']}) = x{best['env_steps_per_s'] / target:.2f} of target", file=log)
+        else:
+            print(f"   target (>= {common.human_rate(target)} env-steps/s at {n} envs): not measured in this run", file=log)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,62 @@
+"""Smoke test of the benchmark scripts: ``--quick --json`` runs end to end and emits the documented keys.
+
+Both scripts run as subprocesses, side by side, with 1 thread and eager modes only
+(compiling takes tens of seconds), so the test stays within a few seconds of
+the scripts' start-up time.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SIM_KEYS = {"device", "num_envs", "mode", "env_steps_per_s", "peak_mem_bytes", "peak_mem_method", "env_steps_per_s_min", "env_steps_per_s_max"}
+ENV_KEYS = {"device", "num_envs", "mode", "env_steps_per_s", "peak_mem_bytes"}
+
+
+def _json_lines(stdout: str) -> list[dict]:
+    lines = [ln for ln in stdout.splitlines() if ln.strip()]
+    assert lines, "no output on stdout"
+    return [json.loads(ln) for ln in lines]  # with --json, stdout holds only JSON lines
+
+
+def _positive(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x) and x > 0
+
+
+def test_bench_scripts_quick_json():
+    cmds = {
+        "sim": [sys.executable, str(ROOT / "bench" / "sim_throughput.py"), "--quick", "--json", "--device", "cpu", "--threads", "1", "--sizes", "1,64"],
+        "env": [sys.executable, str(ROOT / "bench" / "env_throughput.py"), "--quick", "--json", "--threads", "1", "--num-envs", "32"],
+    }
+    procs = {k: subprocess.Popen(c, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k, c in cmds.items()}
+    out = {}
+    for k, p in procs.items():
+        stdout, stderr = p.communicate(timeout=180)
+        assert p.returncode == 0, f"{k} bench failed:\n{stderr[-3000:]}"
+        out[k] = (_json_lines(stdout), stderr)
+
+    sim, sim_log = out["sim"]
+    rows = [r for r in sim if r.get("bench") == "sim_throughput"]
+    assert {(r["num_envs"], r["mode"]) for r in rows} == {(n, m) for n in (1, 64) for m in ("eager", "eager-batched")}
+    for r in rows:
+        assert SIM_KEYS <= r.keys(), SIM_KEYS - r.keys()
+        assert "error" not in r, r["error"]
+        assert r["device"] == "cpu" and _positive(r["env_steps_per_s"])
+        assert r["env_steps_per_s_min"] <= r["env_steps_per_s"] <= r["env_steps_per_s_max"]
+        assert isinstance(r["peak_mem_bytes"], int) and r["peak_mem_bytes"] >= 0 and r["peak_mem_method"]
+    assert "ratios against eager" in sim_log and "env-steps/s" in sim_log  # the table went to stderr
+
+    env, env_log = out["env"]
+    rows = {r["mode"]: r for r in env if r.get("bench") == "env_throughput"}
+    assert set(rows) == {"raw-sim", "env-step", "collector"}
+    for r in rows.values():
+        assert ENV_KEYS <= r.keys(), ENV_KEYS - r.keys()
+        assert r["num_envs"] == 32 and _positive(r["env_steps_per_s"])
+    (ratio,) = [r for r in env if r.get("bench") == "env_ratio"]
+    assert _positive(ratio["collector_over_raw"]) and _positive(ratio["env_step_over_raw"])
+    assert "collector / raw-sim" in env_log
