@@ -117,7 +117,10 @@ class NavTask:
         world = self.base_world[idx]
         start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
         goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
-        world = place_random_objects(world, self.spec, start[:, :2], goal, rc.candidates, gen)
+        world = place_random_objects(
+            world, self.spec, start[:, :2], goal, rc.candidates, gen,
+            start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance,
+        )
         sim = init_state(start, world, self.params)
         n = idx.shape[0]
         obs = self.observe(sim, goal)

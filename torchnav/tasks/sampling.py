@@ -90,14 +90,18 @@ def sample_goals(
 
 
 def place_random_objects(
-    world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator
+    world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator,
+    *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> World:
     """Fill the random box and circle slots of ``world`` (batch ``n``) with fresh objects.
 
-    Each object keeps ``clearance`` m from the start and goal and ``margin`` m from
-    every fixed obstacle, wall and object placed before it (tested on its
-    circumscribed circle, so the guarantee is conservative). Fallback: an object
-    with no valid candidate is left out of this episode (its slot is masked off).
+    Each object keeps ``max(clearance, start_need)`` m from the start point,
+    ``max(clearance, goal_need)`` m from the goal and ``margin`` m from every fixed
+    obstacle, wall and object placed before it (tested on its circumscribed
+    circle, so the guarantee is conservative). ``start_need``/``goal_need`` are
+    the task's own clearances, which a map's smaller ``clearance`` must not undo.
+    Fallback: an object with no valid candidate is left out of this episode (its
+    slot is masked off).
     """
     boxes, box_mask = world.boxes, world.box_mask
     circles, circle_mask = world.circles, world.circle_mask
@@ -112,7 +116,7 @@ def place_random_objects(
         gap = points_clearance(xy, cur) - rc
         d_start = (xy - start_xy[:, None]).norm(dim=-1) - rc
         d_goal = (xy - goal_xy[:, None]).norm(dim=-1) - rc
-        ok = (gap >= margin) & (d_start >= clearance) & (d_goal >= clearance) & _inside(xy, spec.bounds, 0.0) & _inside(xy, spec.bounds, rc.clamp(min=0))
+        ok = (gap >= margin) & (d_start >= max(clearance, start_need)) & (d_goal >= max(clearance, goal_need)) & _inside(xy, spec.bounds, 0.0) & _inside(xy, spec.bounds, rc.clamp(min=0))
         idx, found = _pick(ok, gap)
         return xy, idx, found
 
