@@ -1,0 +1,109 @@
+"""Evaluate a saved policy on any map: success, collision and timeout rates, steps to goal and
+path-length ratio, with 95% confidence intervals.
+
+    python recipes/evaluate.py                                  # the shipped checkpoint on arena
+    python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
+    python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to <CKPT dir>/eval_episodes.mcap
+
+Accepts actor checkpoints (``actor.pt``, format ``torchnav-actor-v1``) and TD3 training
+checkpoints (``checkpoint.pt``). Episodes use seeds ``seed, seed+1, ...`` through the env
+generator, so the same arguments give the same scenarios for every policy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import torch
+from omegaconf import OmegaConf
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common as C  # noqa: E402
+from td3_lidar import make_actor  # noqa: E402
+
+from torchnav.config import merge  # noqa: E402
+from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize  # noqa: E402
+from torchnav.tasks import NavConfig  # noqa: E402
+
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "td3_arena_actor.pt"
+
+
+def load_actor(path: Path):
+    """Actor module and the NavConfig it was trained with, from an actor or TD3 checkpoint."""
+    ck = C.load_checkpoint(path)
+    fmt = ck.get("format")
+    if fmt == "torchnav-actor-v1":
+        actor = make_actor(ck["obs_size"], ck["act_size"], ck["hidden"])
+        state, nav = ck["actor"], ck["nav_config"]
+    elif fmt == "torchnav-td3-v1":
+        prefix = "actor_network_params."
+        state = {k[len(prefix):]: v for k, v in ck["loss"].items() if k.startswith(prefix)}
+        if "module.0.0.weight" not in state:
+            raise RuntimeError(f"{path}: unrecognised actor parameters {sorted(state)[:4]}")
+        actor = make_actor(state["module.0.0.weight"].shape[1], 2, ck["config"]["train"]["hidden"])
+        nav = C.to_dict(C.nav_config(OmegaConf.create(ck["config"])))
+    else:
+        raise RuntimeError(f"{path}: not a torchnav policy checkpoint (format {fmt!r})")
+    try:
+        actor.load_state_dict(state)
+    except RuntimeError as e:
+        raise RuntimeError(f"{path}: checkpoint does not match the actor network: {e}") from e
+    return actor, NavConfig.from_dict(nav, where=f"{path}:nav_config")
+
+
+def main(argv: list[str]) -> dict:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoint", nargs="?", default=str(DEFAULT_CHECKPOINT), help="actor.pt or checkpoint.pt (default: the shipped arena policy)")
+    p.add_argument("--map", default=None, help="map name or YAML path (default: the map it was trained on)")
+    p.add_argument("--episodes", type=int, default=1000, help="number of episodes (default 1000)")
+    p.add_argument("--seed", type=int, default=20_000, help="scenario seed (default 20000)")
+    p.add_argument("--curriculum", action="store_true", help="keep the training curriculum's goal radius instead of goals anywhere")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", default=None, help="write the results as JSON to this path")
+    p.add_argument("--record", type=int, default=0, help="write this many episodes to an MCAP file")
+    p.add_argument("--record-path", default=None, help="MCAP path (default: eval_episodes.mcap beside the checkpoint)")
+    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="task overrides, e.g. max_steps=300 reward.preset=shaped")
+    a = p.parse_args(argv)
+    if a.episodes < 1:
+        p.error("--episodes must be >= 1")
+    torch.set_num_threads(a.threads)
+    ckpt = Path(a.checkpoint)
+    actor, nav = load_actor(ckpt)
+    actor = actor.to(a.device)
+    over = {}
+    for kv in a.set:
+        if "=" not in kv:
+            p.error(f"--set expects KEY=VALUE, got {kv!r}")
+        k, v = kv.split("=", 1)
+        node = over
+        parts = k.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = __import__("yaml").safe_load(v)
+    nav = NavConfig.from_dict(merge(C.to_dict(nav), over), where="--set")
+    cfg = eval_config(nav, map=a.map, anywhere=not a.curriculum)
+    res = summarize(run_episodes(actor, cfg, a.episodes, seed=a.seed, device=a.device))
+    title = f"{ckpt.name} on {cfg.map}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
+    print(format_summary(res, title=title))
+    out = {"checkpoint": str(ckpt), "map": cfg.map, "seed": a.seed, "episodes": a.episodes, **res}
+    if a.json:
+        Path(a.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.json).write_text(json.dumps(out, indent=2))
+        print(f"wrote {a.json}")
+    if a.record:
+        path = Path(a.record_path) if a.record_path else ckpt.parent / "eval_episodes.mcap"
+        rec = record_episodes(actor, cfg, path, a.record, seed=a.seed, device=a.device, metadata={"checkpoint": str(ckpt), "map": cfg.map})
+        print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
+    return out
+
+
+if __name__ == "__main__":
+    try:
+        main(sys.argv[1:])
+    except (C.ConfigError, FileNotFoundError, RuntimeError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
