@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 
 from torchnav.envs import NavEnv  # noqa: E402
-from torchnav.evaluation import eval_config, format_summary, run_episodes, summarize  # noqa: E402
+from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize  # noqa: E402
 
 REPLAY_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))
 
@@ -115,7 +115,7 @@ def main(argv: list[str]) -> dict:
     fresh = ckpt is None
     collector = Collector(
         env, policy, frames_per_batch=int(tc.frames_per_batch), total_frames=max(remaining, int(tc.frames_per_batch)),
-        init_random_frames=int(tc.init_random_frames) if fresh else 0, device=device,
+        init_random_frames=int(tc.init_random_frames) if fresh else 0, device=device, auto_register_policy_transforms=False,
     ) if remaining > 0 else None
 
     eval_cfg = eval_config(nav)
@@ -214,6 +214,10 @@ def main(argv: list[str]) -> dict:
         "frames_to_target": counters["frames_to_target"], "eval": summary, "eval_wall_s": time.perf_counter() - t0,
     }
     logger.log_scalar("final/success_rate", summary["success"]["rate"], step=counters["frames"])
+    if cfg.eval.record_episodes:
+        rec = record_episodes(actor, eval_cfg, run / "episodes.mcap", int(cfg.eval.record_episodes), seed=20_000 + cfg.seed,
+                              device=device, metadata={"checkpoint": str(run / "actor.pt"), "config": C.config_dict(cfg)})
+        result["episodes_mcap"] = None if rec.error else str(run / "episodes.mcap")
     C.write_json(run / "summary.json", result)
     print()
     print(format_summary(summary, title=f"final evaluation on {nav.map}, goals anywhere, deterministic policy"))

@@ -1,0 +1,110 @@
+"""Smoke runs of the recipes with tiny budgets: collection, updates, evaluation, checkpoints, resume."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+RECIPES = ROOT / "recipes"
+sys.path.insert(0, str(RECIPES))
+
+TINY = [
+    "threads=1", "env.num_envs=16", "env.max_steps=60", "train.frames_per_batch=128", "train.init_random_frames=128",
+    "train.updates_per_batch=4", "train.batch_size=32", "train.hidden=[32,32]", "train.buffer_size=10000",
+    "eval.interval_frames=256", "eval.episodes=8", "eval.final_episodes=16", "eval.record_episodes=2",
+    "checkpoint.interval_frames=256", "logger.progress=false",
+]
+
+
+def _td3(args):
+    import td3_lidar
+
+    return td3_lidar.main(args)
+
+
+def test_td3_smoke_and_resume(tmp_path):
+    run = tmp_path / "run"
+    res = _td3(TINY + ["train.total_frames=512", f"logger.run_dir={run}"])
+    assert res["frames"] == 512
+    for f in ("config.yaml", "checkpoint.pt", "actor.pt", "summary.json", "episodes.mcap"):
+        assert (run / f).is_file(), f
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["eval"]["episodes"] == 16
+    rates = sum(summary["eval"][k]["rate"] for k in ("success", "collision", "timeout"))
+    assert rates == pytest.approx(1.0)
+    ck = torch.load(run / "checkpoint.pt", weights_only=True)
+    placements = int(ck["env"]["curriculum"]["placements"])
+    assert ck["counters"]["frames"] == 512 and placements > 16
+    assert list((run / "logs").rglob("*")), "the CSV logger wrote nothing"
+
+    # resume: counters and curriculum continue from the checkpoint
+    res2 = _td3(TINY + ["train.total_frames=1024", f"checkpoint.resume={run}"])
+    assert res2["frames"] == 1024
+    ck2 = torch.load(run / "checkpoint.pt", weights_only=True)
+    assert ck2["counters"]["updates"] > ck["counters"]["updates"]
+    assert int(ck2["env"]["curriculum"]["placements"]) > placements
+    assert float(ck2["env"]["curriculum"]["radius"]) > float(ck["env"]["curriculum"]["radius"])
+
+
+def test_td3_unknown_key_and_missing_checkpoint(tmp_path):
+    from torchnav.config import ConfigError
+
+    with pytest.raises(ConfigError, match="curriculum.grwth"):
+        _td3(TINY + ["curriculum.grwth=0.01"])
+    with pytest.raises(ConfigError, match="grwth"):
+        _td3(TINY + ["task.curriculum.grwth=0.01", f"logger.run_dir={tmp_path / 'x'}"])
+    with pytest.raises(FileNotFoundError, match="checkpoint not found"):
+        _td3(TINY + [f"checkpoint.resume={tmp_path / 'nothing'}"])
+
+
+def test_td3_sigterm_writes_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    args = [sys.executable, str(RECIPES / "td3_lidar.py"), *TINY, "train.total_frames=10000000", f"logger.run_dir={run}"]
+    env = {**os.environ, "RL_WARNINGS": "False"}
+    p = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not (run / "checkpoint.pt").exists():  # first periodic checkpoint: training is running
+        time.sleep(0.5)
+    assert (run / "checkpoint.pt").exists(), p.communicate()[0][-2000:] if p.poll() is not None else "no checkpoint yet"
+    first = torch.load(run / "checkpoint.pt", weights_only=True)["counters"]["frames"]
+    time.sleep(2)
+    p.send_signal(signal.SIGTERM)
+    out, _ = p.communicate(timeout=120)
+    assert p.returncode == 0, out[-2000:]
+    assert "--resume" in out
+    last = torch.load(run / "checkpoint.pt", weights_only=True)["counters"]["frames"]
+    assert last >= first
+
+
+def test_evaluate_reads_checkpoints(tmp_path):
+    import evaluate
+
+    run = tmp_path / "run"
+    _td3(TINY + ["train.total_frames=256", "eval.record_episodes=0", f"logger.run_dir={run}"])
+    for name in ("actor.pt", "checkpoint.pt"):
+        out = evaluate.main([str(run / name), "--episodes", "12", "--threads", "1", "--map", "empty", "--json", str(tmp_path / "e.json")])
+        assert out["episodes"] == 12 and out["map"] == "empty"
+    data = json.loads((tmp_path / "e.json").read_text())
+    assert {"success", "collision", "timeout", "steps_to_goal", "path_ratio"} <= set(data)
+    lo, hi = data["success"]["ci95"]
+    assert 0.0 <= lo <= data["success"]["rate"] <= hi <= 1.0
+    with pytest.raises(FileNotFoundError):
+        evaluate.main([str(tmp_path / "missing.pt")])
+
+
+def test_evaluate_shipped_checkpoint():
+    import evaluate
+
+    if not evaluate.DEFAULT_CHECKPOINT.is_file():
+        pytest.fail(f"the shipped checkpoint {evaluate.DEFAULT_CHECKPOINT} is missing")
+    out = evaluate.main(["--episodes", "20", "--threads", "1"])
+    assert out["episodes"] == 20 and out["map"] == "arena"
