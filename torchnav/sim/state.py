@@ -151,6 +151,8 @@ def init_state(
     check_world(world, b, pose.dtype, pose.device)
     if vel is None:
         vel = pose.new_zeros(b, 2)
+    elif vel.shape != (b, 2) or vel.dtype != pose.dtype or vel.device != pose.device:
+        raise ValueError(f"vel must be a ({b}, 2) tensor of the pose's dtype and device, got {vel.dtype} {tuple(vel.shape)} on {vel.device}")
     clearance = disc_clearance(pose, world, params.robot_radius)
     return SimState(
         pose=pose,

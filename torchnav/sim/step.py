@@ -16,7 +16,7 @@ from .geometry import disc_clearance
 from .kinematics import apply_limits, integrate, wheels_to_unicycle
 from .lidar import lidar_scan
 from .params import SimParams
-from .state import SimState, World
+from .state import SimState, World, check_world
 
 
 def check_action(action: Tensor, state: SimState) -> None:
@@ -55,6 +55,7 @@ def step(
         The new state; ``state`` is left untouched.
     """
     check_action(action, state)
+    check_world(world, state.pose.shape[0], state.pose.dtype, state.pose.device)
     cmd = wheels_to_unicycle(action, params.track_width) if wheel_speeds else action
     vel = apply_limits(cmd, state.vel, params)
     pose = integrate(state.pose, vel, params)
