@@ -1,0 +1,210 @@
+"""Differential-drive kinematics against closed-form motion, limits and odometry."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from reference import arc_pose, wrap
+from torchnav.sim import (
+    SimParams,
+    apply_limits,
+    init_state,
+    integrate_euler,
+    integrate_exact,
+    make_world,
+    step,
+    unicycle_to_wheels,
+    wheels_to_unicycle,
+)
+
+F64 = torch.float64
+
+
+def rollout(fn, pose, twist, dt, n):
+    for _ in range(n):
+        pose = fn(pose, twist, dt)
+    return pose
+
+
+# --------------------------------------------------------------------------- analytic motion
+
+
+@pytest.mark.parametrize("fn", [integrate_exact, integrate_euler], ids=["exact", "euler"])
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_straight_drive_ends_at_x0_plus_vt(fn, dtype):
+    pose0 = torch.tensor([[1.0, -2.0, 0.0], [0.5, 0.5, 2.0], [0.0, 0.0, -2.5]], dtype=dtype)
+    v = torch.tensor([0.4, -0.3, 0.25], dtype=dtype)
+    twist = torch.stack((v, torch.zeros_like(v)), -1)
+    dt, n = 0.1, 40
+    end = rollout(fn, pose0, twist, dt, n)
+    t = dt * n
+    expect = torch.stack(
+        (pose0[:, 0] + v * t * torch.cos(pose0[:, 2]), pose0[:, 1] + v * t * torch.sin(pose0[:, 2]), pose0[:, 2]), -1
+    )
+    tol = 1e-5 if dtype == torch.float32 else 1e-12
+    torch.testing.assert_close(end, expect, atol=tol, rtol=0)
+
+
+@pytest.mark.parametrize("dtype,tol", [(torch.float32, 1e-5), (F64, 1e-11)])
+def test_exact_integrator_follows_the_circle(dtype, tol):
+    x0, y0, th0, v, w = 0.3, -0.7, 0.4, 0.5, 0.8
+    dt, n = 0.1, 50
+    r = v / w
+    cx, cy = x0 - r * math.sin(th0), y0 + r * math.cos(th0)
+    pose = torch.tensor([[x0, y0, th0]], dtype=dtype)
+    twist = torch.tensor([[v, w]], dtype=dtype)
+    for k in range(1, n + 1):
+        pose = integrate_exact(pose, twist, dt)
+        # Every intermediate pose lies on the circle of radius v/omega, at angle omega*t.
+        x, y, th = pose[0].tolist()
+        assert math.hypot(x - cx, y - cy) == pytest.approx(r, abs=tol)
+        assert abs(wrap(math.atan2(y - cy, x - cx) - (th0 - math.pi / 2 + w * k * dt))) < 10 * tol
+        assert abs(wrap(th - (th0 + w * k * dt))) < 10 * tol
+    ex, ey, eth = arc_pose(x0, y0, th0, v, w, n * dt)
+    torch.testing.assert_close(pose[0], torch.tensor([ex, ey, wrap(eth)], dtype=dtype), atol=tol, rtol=0)
+
+
+def test_euler_converges_to_the_arc_at_first_order():
+    x0, y0, th0, v, w, t_end = 0.0, 0.0, 0.3, 0.5, 1.0, 2.0
+    exact = torch.tensor(arc_pose(x0, y0, th0, v, w, t_end)[:2], dtype=F64)
+    errors = []
+    for n in (20, 40, 80, 160):
+        pose = rollout(integrate_euler, torch.tensor([[x0, y0, th0]], dtype=F64), torch.tensor([[v, w]], dtype=F64), t_end / n, n)
+        errors.append(float(torch.linalg.vector_norm(pose[0, :2] - exact)))
+    assert errors[0] > 1e-3  # Euler really is off at coarse dt ...
+    ratios = [errors[i] / errors[i + 1] for i in range(len(errors) - 1)]
+    for ratio in ratios:  # ... and halving dt halves the error
+        assert 1.8 < ratio < 2.2, (errors, ratios)
+    # The exact integrator has no such error at any dt.
+    pose = rollout(integrate_exact, torch.tensor([[x0, y0, th0]], dtype=F64), torch.tensor([[v, w]], dtype=F64), t_end / 20, 20)
+    torch.testing.assert_close(pose[0, :2], exact, atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("fn", [integrate_exact, integrate_euler], ids=["exact", "euler"])
+def test_spin_in_place_keeps_position(fn):
+    pose0 = torch.tensor([[1.5, -0.5, 3.0], [0.0, 2.0, -1.0]], dtype=F64)
+    twist = torch.tensor([[0.0, 1.0], [0.0, -0.7]], dtype=F64)
+    dt, n = 0.1, 30
+    end = rollout(fn, pose0, twist, dt, n)
+    assert torch.equal(end[:, :2], pose0[:, :2])
+    expect = [wrap(3.0 + 1.0 * dt * n), wrap(-1.0 - 0.7 * dt * n)]
+    torch.testing.assert_close(end[:, 2], torch.tensor(expect, dtype=F64), atol=1e-12, rtol=0)
+    assert bool(((end[:, 2] >= -math.pi) & (end[:, 2] < math.pi)).all())
+
+
+# --------------------------------------------------------------------------- omega -> 0
+
+
+@pytest.mark.parametrize("w", [0.0, 1e-8, -1e-8, 1e-3, -1e-3])
+@pytest.mark.parametrize("dtype", [torch.float32, F64])
+def test_exact_integrator_near_zero_turn_rate(w, dtype):
+    dt = 0.1
+    pose = torch.tensor([[0.2, -0.1, 0.7]], dtype=dtype, requires_grad=True)
+    twist = torch.tensor([[0.45, w]], dtype=dtype, requires_grad=True)
+    out = integrate_exact(pose, twist, dt)
+    assert torch.isfinite(out).all()
+    tol = 1e-7 if dtype == torch.float32 else 1e-14
+    # Matches the classic v/omega arc formula where that formula is itself accurate
+    # (it cancels catastrophically below omega ~ 1e-4), ...
+    if abs(w) >= 1e-4:
+        ex, ey, eth = arc_pose(0.2, -0.1, 0.7, 0.45, w, dt)
+        torch.testing.assert_close(out[0].detach(), torch.tensor([ex, ey, eth], dtype=dtype), atol=10 * tol, rtol=0)
+    # ... and the Euler (straight) step up to the O(omega * v * dt^2) arc correction.
+    euler = integrate_euler(pose, twist, dt).detach()
+    assert float((out.detach() - euler).abs().max()) <= abs(w) * 0.45 * dt * dt + tol
+    # Gradients are finite and equal the analytic Jacobian of the straight/arc step.
+    for k in range(3):
+        gp, gt = torch.autograd.grad(out[0, k], (pose, twist), retain_graph=True)
+        assert torch.isfinite(gp).all() and torch.isfinite(gt).all()
+    gp_x = torch.autograd.grad(out[0, 0], twist, retain_graph=True)[0][0]
+    # d x / d v = dt cos(theta + w dt / 2) sinc(w dt / 2); d x / d omega -> -v dt^2 sin(theta) / 2 as w -> 0.
+    u = w * dt / 2
+    sinc = 1.0 if u == 0 else math.sin(u) / u
+    assert float(gp_x[0]) == pytest.approx(dt * math.cos(0.7 + u) * sinc, abs=10 * tol)
+    assert float(gp_x[1]) == pytest.approx(-0.45 * dt * dt * math.sin(0.7) / 2, abs=1e-5 if dtype == torch.float32 else 1e-6)
+
+
+# --------------------------------------------------------------------------- conversions and limits
+
+
+def test_wheel_unicycle_conversions():
+    track = 0.3
+    wheels = torch.tensor([[0.1, 0.3], [0.5, 0.5], [-0.2, 0.2], [0.4, -0.1]], dtype=F64)
+    twist = wheels_to_unicycle(wheels, track)
+    vl, vr = wheels[:, 0], wheels[:, 1]
+    torch.testing.assert_close(twist[:, 0], (vl + vr) / 2, atol=1e-15, rtol=0)
+    torch.testing.assert_close(twist[:, 1], (vr - vl) / track, atol=1e-15, rtol=0)
+    assert twist[0].tolist() == pytest.approx([0.2, 0.2 / 0.3])
+    assert twist[2, 0] == 0.0  # opposite wheels: spin in place
+    torch.testing.assert_close(unicycle_to_wheels(twist, track), wheels, atol=1e-15, rtol=0)
+    g = torch.Generator().manual_seed(0)
+    tw = torch.randn(7, 5, 2, generator=g, dtype=F64)  # any leading shape
+    torch.testing.assert_close(wheels_to_unicycle(unicycle_to_wheels(tw, 0.45), 0.45), tw, atol=1e-14, rtol=0)
+
+
+def test_speed_limits_clamp():
+    p = SimParams(v_min=-0.2, v_max=0.5, omega_max=1.0)
+    cmd = torch.tensor([[2.0, 3.0], [-1.0, -3.0], [0.3, 0.5], [0.5, -1.0]])
+    out = apply_limits(cmd, torch.zeros(4, 2), p)
+    torch.testing.assert_close(out, torch.tensor([[0.5, 1.0], [-0.2, -1.0], [0.3, 0.5], [0.5, -1.0]]), atol=0, rtol=0)
+
+
+def test_acceleration_limits_ramp_through_step():
+    p = SimParams(dt=0.1, v_max=0.5, omega_max=1.0, lin_acc_max=1.0, ang_acc_max=4.0)
+    world = make_world(1, dtype=F64)
+    state = init_state(torch.zeros(1, 3, dtype=F64), world, p)
+    vs, ws = [], []
+    for _ in range(7):
+        state = step(state, torch.tensor([[1.0, -1.0]], dtype=F64), world, p)
+        vs.append(float(state.vel[0, 0]))
+        ws.append(float(state.vel[0, 1]))
+    # v rises by lin_acc_max * dt = 0.1 per step until v_max; omega by 0.4 per step until omega_max.
+    assert vs == pytest.approx([0.1, 0.2, 0.3, 0.4, 0.5, 0.5, 0.5])
+    assert ws == pytest.approx([-0.4, -0.8, -1.0, -1.0, -1.0, -1.0, -1.0])
+    # Braking is limited the same way.
+    state = step(state, torch.tensor([[-1.0, 1.0]], dtype=F64), world, p)
+    assert state.vel[0].tolist() == pytest.approx([0.4, -0.6])
+
+
+def test_non_finite_commands_mean_stop():
+    p = SimParams()
+    cmd = torch.tensor([[math.nan, 0.3], [math.inf, -math.inf], [0.2, math.nan]])
+    out = apply_limits(cmd, torch.zeros(3, 2), p)
+    assert out.tolist() == [[0.0, pytest.approx(0.3)], [0.0, 0.0], [pytest.approx(0.2), 0.0]]
+
+
+# --------------------------------------------------------------------------- odometry
+
+
+def _drive(params, gen, n=25):
+    world = make_world(2, dtype=F64)
+    state = init_state(torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]], dtype=F64), world, params)
+    action = torch.tensor([[0.4, 0.3], [0.2, -0.5]], dtype=F64)
+    for _ in range(n):
+        state = step(state, action, world, params, generator=gen)
+    return state
+
+
+def test_odometry_without_noise_equals_pose():
+    state = _drive(SimParams(), torch.Generator().manual_seed(0))
+    assert torch.equal(state.odom, state.pose)
+    # Noise configured but no generator: still noise-free.
+    state = _drive(SimParams(odom_v_noise=0.1, odom_omega_noise=0.1), None)
+    assert torch.equal(state.odom, state.pose)
+
+
+def test_odometry_noise_drifts_reproducibly():
+    noisy = SimParams(odom_v_noise=0.05, odom_omega_noise=0.05)
+    clean = _drive(SimParams(), None)
+    a = _drive(noisy, torch.Generator().manual_seed(3))
+    b = _drive(noisy, torch.Generator().manual_seed(3))
+    c = _drive(noisy, torch.Generator().manual_seed(4))
+    assert torch.equal(a.pose, clean.pose)  # noise never touches the true pose
+    assert torch.equal(a.vel, clean.vel)
+    drift = (a.odom - a.pose).abs()
+    assert float(drift[:, :2].max()) > 1e-3 and float(drift[:, 2].max()) > 1e-3
+    assert torch.equal(a.odom, b.odom)  # same seed, same drift
+    assert not torch.equal(a.odom, c.odom)
