@@ -223,3 +223,26 @@ def test_replay_prints_summary_and_writes_gif(recorded, tmp_path, capsys):
 
     with Image.open(out) as im:
         assert im.format == "GIF" and im.n_frames > 1
+
+
+def test_render_batch_trajectories_and_learning_curves(recorded, tmp_path):
+    from torchnav.render import plot_env, plot_learning_curves, plot_trajectories, read_scalars
+
+    env, _, td = recorded
+    fig = plot_env(env, envs=(0, 1, 2), ncols=2)
+    assert len(fig.axes) == 3
+    fig.savefig(tmp_path / "batch.png")
+    ax = plot_trajectories(td["next", "pose"], env.state.world, envs=(0, 4), done=td["next", "done"], goal=td["goal"])
+    assert len(ax.lines) > 2
+    ax.figure.savefig(tmp_path / "traj.png")
+    run = tmp_path / "run"
+    (run / "logs" / "scalars" / "eval").mkdir(parents=True)
+    (run / "logs" / "scalars" / "eval" / "return.csv").write_text("0,1.0\n10,2.0\n20,3.5\n")
+    (run / "logs" / "scalars" / "loss.csv").write_text("0,0.5\n10,0.25\n")
+    scalars = read_scalars(run)
+    assert set(scalars) == {"eval/return", "loss"} and scalars["eval/return"].shape == (3, 2)
+    fig = plot_learning_curves(run, smooth=2)
+    assert len(fig.axes) == 2
+    fig.savefig(tmp_path / "curves.png")
+    with pytest.raises(FileNotFoundError):
+        plot_learning_curves(tmp_path / "empty")

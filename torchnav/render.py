@@ -237,3 +237,172 @@ def plot_map(spec: MapSpec, ax: Axes | None = None, n_samples: int = 0, seed: in
         title += "\nrandom per reset: " + ", ".join(extras) + (" (dashed)" if n_samples else "")
     ax.set_title(title, fontsize=10)
     return ax
+
+
+# -- several envs, trajectories, learning curves -----------------------------------------------
+
+
+def _grid(n: int, ncols: int, panel: float = 3.2):
+    from matplotlib.figure import Figure
+
+    ncols = max(1, min(ncols, n))
+    nrows = math.ceil(n / ncols)
+    fig = Figure(figsize=(panel * ncols, panel * nrows))
+    axes = [fig.add_subplot(nrows, ncols, i + 1) for i in range(n)]
+    return fig, axes
+
+
+def plot_envs(
+    world: World,
+    pose: Any,
+    ranges: Any,
+    goal: Any,
+    lidar: LidarParams,
+    robot_radius: float,
+    envs: Sequence[int] | None = None,
+    ncols: int = 4,
+    goal_radius: float | None = None,
+    titles: Sequence[str] | None = None,
+):
+    """Top-down views of several envs of a batch side by side: map, robot, lidar rays, goal.
+
+    ``pose`` ``(B, 3)``, ``ranges`` ``(B, n_rays)``, ``goal`` ``(B, 2)`` in m; ``envs`` the
+    indices to show (default: the first 8). Returns a pyplot-free ``Figure``.
+    """
+    b = _np(pose).reshape(-1, 3).shape[0]
+    envs = list(range(min(b, 8))) if envs is None else [int(e) for e in envs]
+    fig, axes = _grid(len(envs), ncols)
+    for k, (ax, e) in enumerate(zip(axes, envs)):
+        draw_world(ax, world, env=e)
+        draw_rays(ax, pose, ranges, lidar, env=e)
+        draw_goal(ax, goal, env=e, radius=goal_radius)
+        draw_robots(ax, pose, robot_radius, env=e)
+        ax.set_aspect("equal")
+        ax.autoscale_view()
+        ax.set_title(titles[k] if titles else f"env {e}", fontsize=9)
+        ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def plot_env(env: Any, envs: Sequence[int] | None = None, ncols: int = 4):
+    """:func:`plot_envs` of a ``NavEnv``'s current state (call ``env.reset()`` first)."""
+    s = env.state
+    if s is None:
+        raise ValueError("plot_env: the env has no state yet; call env.reset() first")
+    return plot_envs(s.world, s.sim.pose, s.sim.ranges, s.goal, env.task.params.lidar, env.cfg.robot.radius,
+                     envs=envs, ncols=ncols, goal_radius=env.cfg.goal_tolerance)
+
+
+def plot_trajectories(
+    pose: Any,
+    world: World | None = None,
+    envs: Sequence[int] | None = None,
+    done: Any | None = None,
+    goal: Any | None = None,
+    ax: Axes | None = None,
+    env_world: int | None = None,
+) -> Axes:
+    """Paths of robots over a rollout: ``pose`` ``(B, T, 3)`` (TorchRL layout, e.g. ``td["next", "pose"]``).
+
+    ``done`` ``(B, T)`` or ``(B, T, 1)`` breaks a path where an episode ended (start
+    marked with a circle, end with a cross); ``goal`` ``(B, T, 2)`` or ``(B, 2)`` adds
+    the goals. The map of ``world`` env ``env_world`` (default: the first shown env)
+    is drawn underneath; random objects differ between episodes, so it is only
+    exact for one episode. Returns the axes.
+    """
+    p = _np(pose)
+    if p.ndim == 2:
+        p = p[None]
+    b, t = p.shape[:2]
+    envs = list(range(min(b, 8))) if envs is None else [int(e) for e in envs]
+    if ax is None:
+        from matplotlib.figure import Figure
+
+        ax = Figure(figsize=(5.5, 5.5)).add_subplot()
+    if world is not None:
+        draw_world(ax, world, env=envs[0] if env_world is None else env_world)
+    d = np.zeros((b, t), bool) if done is None else _np(done).reshape(b, t).astype(bool)
+    colors = [f"C{i % 10}" for i in range(len(envs))]
+    for c, e in zip(colors, envs):
+        cuts = np.flatnonzero(d[e]) + 1
+        for seg in np.split(np.arange(t), cuts):
+            if len(seg) == 0:
+                continue
+            xy = p[e, seg, :2]
+            ax.plot(xy[:, 0], xy[:, 1], "-", color=c, lw=1.2, alpha=0.85)
+            ax.plot(xy[0, 0], xy[0, 1], "o", color=c, ms=4)
+            if d[e, seg[-1]]:
+                ax.plot(xy[-1, 0], xy[-1, 1], "x", color=c, ms=6)
+        if goal is not None:
+            g = _np(goal)
+            g = g[e].reshape(-1, 2)
+            ax.plot(g[:, 0], g[:, 1], "*", color=c, ms=10, markeredgecolor="k", linestyle="none")
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"trajectories of env{'s' if len(envs) > 1 else ''} {', '.join(map(str, envs))}", fontsize=10)
+    return ax
+
+
+def read_scalars(run_dir: Any) -> dict[str, np.ndarray]:
+    """Scalar logs of a run directory: ``{name: (N, 2) [step, value]}``.
+
+    Reads TorchRL's CSV logger layout (``<run>/**/scalars/<name>.csv``, rows
+    ``step,value``; names may contain ``/``) and ``*.jsonl`` files of dicts with a
+    ``step`` key (every other numeric key becomes a curve).
+    """
+    import json
+    from pathlib import Path
+
+    run = Path(run_dir)
+    out: dict[str, list] = {}
+    for f in sorted(run.glob("**/scalars/**/*.csv")):
+        root = next(p for p in f.parents if p.name == "scalars")
+        name = str(f.relative_to(root).with_suffix(""))
+        rows = []
+        for line in f.read_text().splitlines():
+            parts = line.split(",")
+            try:
+                rows.append((float(parts[0]) if parts[0] not in ("", "None") else len(rows), float(parts[1])))
+            except (ValueError, IndexError):
+                continue  # header or torn last line
+        out[name] = rows
+    for f in sorted(run.glob("**/*.jsonl")):
+        for i, line in enumerate(f.read_text().splitlines()):
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                continue
+            step = rec.get("step", i)
+            for k, v in rec.items():
+                if k != "step" and isinstance(v, (int, float)) and not isinstance(v, bool):
+                    out.setdefault(k, []).append((float(step), float(v)))
+    return {k: np.asarray(v, dtype=np.float64).reshape(-1, 2) for k, v in out.items() if v}
+
+
+def plot_learning_curves(run_dir: Any, keys: Sequence[str] | None = None, smooth: int = 1, ncols: int = 3):
+    """One panel per logged scalar of a run directory (see :func:`read_scalars`).
+
+    ``keys`` selects and orders the curves (default: all, sorted); ``smooth`` is a
+    moving-average window in log points (1: raw). Raises ``FileNotFoundError`` when
+    the directory holds no scalar logs. Returns a pyplot-free ``Figure``.
+    """
+    scalars = read_scalars(run_dir)
+    if not scalars:
+        raise FileNotFoundError(f"no scalar logs (scalars/*.csv or *.jsonl) under {run_dir}")
+    keys = sorted(scalars) if keys is None else [k for k in keys if k in scalars]
+    fig, axes = _grid(len(keys), ncols, panel=3.4)
+    for ax, k in zip(axes, keys):
+        a = scalars[k][np.argsort(scalars[k][:, 0], kind="stable")]
+        ax.plot(a[:, 0], a[:, 1], color="0.7" if smooth > 1 else "tab:blue", lw=0.8)
+        if smooth > 1 and len(a) >= smooth:
+            kern = np.ones(smooth) / smooth
+            ax.plot(a[smooth - 1 :, 0], np.convolve(a[:, 1], kern, mode="valid"), color="tab:blue", lw=1.4)
+        ax.set_title(k, fontsize=9)
+        ax.set_xlabel("step", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
