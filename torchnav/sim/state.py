@@ -157,7 +157,7 @@ def init_state(
     return SimState(
         pose=pose,
         vel=vel,
-        odom=pose,
+        odom=pose.clone(),  # not aliased with pose (aliasing makes torch.compile specialise)
         ranges=lidar_scan(pose, world, params.lidar),
         clearance=clearance,
         collided=clearance <= 0,
