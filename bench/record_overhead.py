@@ -64,17 +64,27 @@ def main() -> None:
     record_rollout(env, policy, 10)  # warm-up
     off, on, inside = [], [], [0.0]
     with tempfile.TemporaryDirectory() as tmp:
-        for r in range(args.repeats):
+        def run_off():
             sync(); t = time.perf_counter()
             record_rollout(env, policy, args.steps)
             sync(); off.append(time.perf_counter() - t)
+
+        def run_on(r):
             path = Path(tmp) / f"bench{r}.mcap"
             sync(); t = time.perf_counter()
             with EpisodeRecorder(path, env, envs=(0,)) as rec:
                 _time_calls(rec, inside)
                 record_rollout(env, policy, args.steps, rec)
             sync(); on.append(time.perf_counter() - t)
-            size = path.stat().st_size
+            return path.stat().st_size
+
+        for r in range(args.repeats):  # alternate the order to cancel drifts in machine load
+            if r % 2:
+                size = run_on(r)
+                run_off()
+            else:
+                run_off()
+                size = run_on(r)
     m_off, m_on = min(off), min(on)
     rec_share = inside[0] / sum(on)
     print(f"device={args.device} num_envs={args.num_envs} steps={args.steps} map={args.map} repeats={args.repeats}")
