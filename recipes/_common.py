@@ -24,7 +24,7 @@ from torchnav.tasks import NavConfig
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 # Sections whose keys are validated by NavConfig rather than by the YAML file.
-_FREE_SECTIONS = ("task",)
+_FREE_SECTIONS = ("task", "reward.weights")
 
 
 def load_config(name: str, argv: list[str]) -> DictConfig:
@@ -58,11 +58,11 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
         raise ConfigError(f"config file not found: {path}")
     cfg = OmegaConf.create(yaml.safe_load(path.read_text()) or {})
     for sec in _FREE_SECTIONS:
-        if sec not in cfg or cfg[sec] is None:
-            cfg[sec] = {}
+        if OmegaConf.select(cfg, sec) is None:
+            OmegaConf.update(cfg, sec, {}, force_add=True)
     OmegaConf.set_struct(cfg, True)
     for sec in _FREE_SECTIONS:
-        OmegaConf.set_struct(cfg[sec], False)
+        OmegaConf.set_struct(OmegaConf.select(cfg, sec), False)
     try:
         cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(overrides))
     except (ConfigAttributeError, ConfigKeyError) as e:

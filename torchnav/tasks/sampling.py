@@ -103,41 +103,69 @@ def place_random_objects(
     Fallback: an object with no valid candidate is left out of this episode (its
     slot is masked off).
     """
-    boxes, box_mask = world.boxes, world.box_mask
-    circles, circle_mask = world.circles, world.circle_mask
-    # Forget the previous episode's random objects before testing new candidates against the world.
-    box_mask = torch.cat((box_mask[:, : spec.n_fixed_boxes], torch.zeros_like(box_mask[:, spec.n_fixed_boxes :])), 1)
-    circle_mask = torch.cat((circle_mask[:, : spec.n_fixed_circles], torch.zeros_like(circle_mask[:, spec.n_fixed_circles :])), 1)
     n, like = start_xy.shape[0], start_xy
+    rb, rcirc = spec.random_boxes, spec.random_circles
+    nb, nc = (rb.count if rb else 0), (rcirc.count if rcirc else 0)
+    nb0, nc0 = spec.n_fixed_boxes, spec.n_fixed_circles
+    if nb + nc == 0:
+        return world
+    # Forget the previous episode's random objects: candidates are tested against fixed obstacles only.
+    fixed = World(
+        segments=world.segments, segment_mask=world.segment_mask,
+        circles=world.circles, circle_mask=torch.cat((world.circle_mask[:, :nc0], torch.zeros_like(world.circle_mask[:, nc0:])), 1),
+        boxes=world.boxes, box_mask=torch.cat((world.box_mask[:, :nb0], torch.zeros_like(world.box_mask[:, nb0:])), 1),
+        batch_size=[n],
+    )
     xmin, ymin, xmax, ymax = spec.bounds
-
-    def candidates(rc: Tensor, clearance: float, margin: float, cur: World):
-        xy = torch.stack((_uniform((n, k), xmin, xmax, gen, like), _uniform((n, k), ymin, ymax, gen, like)), -1)
-        gap = points_clearance(xy, cur) - rc
-        d_start = (xy - start_xy[:, None]).norm(dim=-1) - rc
-        d_goal = (xy - goal_xy[:, None]).norm(dim=-1) - rc
-        ok = (gap >= margin) & (d_start >= max(clearance, start_need)) & (d_goal >= max(clearance, goal_need)) & _inside(xy, spec.bounds, 0.0) & _inside(xy, spec.bounds, rc.clamp(min=0))
-        idx, found = _pick(ok, gap)
-        return xy, idx, found
-
-    rb = spec.random_boxes
-    for j in range(rb.count if rb else 0):
-        slot = spec.n_fixed_boxes + j
-        hx = _uniform((n, k), rb.size_x[0] / 2, rb.size_x[1] / 2, gen, like)
-        hy = _uniform((n, k), rb.size_y[0] / 2, rb.size_y[1] / 2, gen, like)
-        yaw = _uniform((n, k), rb.yaw[0], rb.yaw[1], gen, like)
-        cur = World(segments=world.segments, segment_mask=world.segment_mask, circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask, batch_size=[n])
-        xy, idx, found = candidates(torch.hypot(hx, hy), rb.clearance, rb.margin, cur)
-        new = torch.stack((_gather(xy, idx)[:, 0], _gather(xy, idx)[:, 1], _gather(hx, idx), _gather(hy, idx), _gather(yaw, idx)), -1)
-        boxes = torch.cat((boxes[:, :slot], new[:, None], boxes[:, slot + 1 :]), 1)
-        box_mask = torch.cat((box_mask[:, :slot], found[:, None], box_mask[:, slot + 1 :]), 1)
-    rcirc = spec.random_circles
-    for j in range(rcirc.count if rcirc else 0):
-        slot = spec.n_fixed_circles + j
-        r = _uniform((n, k), rcirc.radius[0], rcirc.radius[1], gen, like)
-        cur = World(segments=world.segments, segment_mask=world.segment_mask, circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask, batch_size=[n])
-        xy, idx, found = candidates(r, rcirc.clearance, rcirc.margin, cur)
-        new = torch.cat((_gather(xy, idx), _gather(r, idx)[:, None]), -1)
-        circles = torch.cat((circles[:, :slot], new[:, None], circles[:, slot + 1 :]), 1)
-        circle_mask = torch.cat((circle_mask[:, :slot], found[:, None], circle_mask[:, slot + 1 :]), 1)
+    m = nb + nc
+    # All candidates of all objects at once: (n, m, k).
+    xy = torch.stack((_uniform((n, m, k), xmin, xmax, gen, like), _uniform((n, m, k), ymin, ymax, gen, like)), -1)
+    parts_r = []
+    if nb:
+        hx = _uniform((n, nb, k), rb.size_x[0] / 2, rb.size_x[1] / 2, gen, like)
+        hy = _uniform((n, nb, k), rb.size_y[0] / 2, rb.size_y[1] / 2, gen, like)
+        yaw = _uniform((n, nb, k), rb.yaw[0], rb.yaw[1], gen, like)
+        parts_r.append(torch.hypot(hx, hy))
+    if nc:
+        rad = _uniform((n, nc, k), rcirc.radius[0], rcirc.radius[1], gen, like)
+        parts_r.append(rad)
+    rc = torch.cat(parts_r, 1)  # circumscribed radius (n, m, k)
+    per_obj = ([(rb.clearance, rb.margin)] * nb if nb else []) + ([(rcirc.clearance, rcirc.margin)] * nc if nc else [])
+    clear = torch.tensor([max(c, start_need) for c, _ in per_obj], dtype=like.dtype, device=like.device)[None, :, None]
+    clear_g = torch.tensor([max(c, goal_need) for c, _ in per_obj], dtype=like.dtype, device=like.device)[None, :, None]
+    margin = torch.tensor([mg for _, mg in per_obj], dtype=like.dtype, device=like.device)[None, :, None]
+    gap = points_clearance(xy.reshape(n, m * k, 2), fixed).reshape(n, m, k) - rc
+    ok = (
+        (gap >= margin)
+        & ((xy - start_xy[:, None, None]).norm(dim=-1) - rc >= clear)
+        & ((xy - goal_xy[:, None, None]).norm(dim=-1) - rc >= clear_g)
+        & _inside(xy, spec.bounds, 0.0) & _inside(xy, spec.bounds, rc.clamp(min=0))
+    )
+    # Objects in order, each keeping `margin` from the circumscribed circles of those placed before it.
+    centres, radii, found_all, chosen = [], [], [], []
+    for j in range(m):
+        okj = ok[:, j]
+        if centres:
+            c = torch.stack(centres, 1)  # (n, j, 2)
+            sep = (xy[:, j, :, None] - c[:, None]).norm(dim=-1) - rc[:, j, :, None] - torch.stack(radii, 1)[:, None]  # (n, k, j)
+            clash = (sep < margin[0, j, 0]) & torch.stack(found_all, 1)[:, None]
+            okj = okj & ~clash.any(-1)
+        idx, found = _pick(okj, gap[:, j])
+        centres.append(_gather(xy[:, j], idx))
+        radii.append(_gather(rc[:, j], idx))
+        found_all.append(found)
+        chosen.append(idx)
+    boxes, box_mask = fixed.boxes, fixed.box_mask
+    if nb:
+        idx = torch.stack(chosen[:nb], 1)[..., None]  # (n, nb, 1)
+        pick = lambda t: t.gather(2, idx)[..., 0]  # noqa: E731
+        new = torch.stack((*torch.stack(centres[:nb], 1).unbind(-1), pick(hx), pick(hy), pick(yaw)), -1)
+        boxes = torch.cat((boxes[:, :nb0], new, boxes[:, nb0 + nb :]), 1)
+        box_mask = torch.cat((box_mask[:, :nb0], torch.stack(found_all[:nb], 1), box_mask[:, nb0 + nb :]), 1)
+    circles, circle_mask = fixed.circles, fixed.circle_mask
+    if nc:
+        idx = torch.stack(chosen[nb:], 1)[..., None]
+        new = torch.cat((torch.stack(centres[nb:], 1), rad.gather(2, idx)), -1)
+        circles = torch.cat((circles[:, :nc0], new, circles[:, nc0 + nc :]), 1)
+        circle_mask = torch.cat((circle_mask[:, :nc0], torch.stack(found_all[nb:], 1), circle_mask[:, nc0 + nc :]), 1)
     return World(segments=world.segments, segment_mask=world.segment_mask, circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask, batch_size=[n], device=world.device)

@@ -1,0 +1,49 @@
+"""Plot success rate against wall-clock time and against frames for one or more TD3 runs.
+
+    python docs/scripts/learning_curve.py RUN_DIR [RUN_DIR ...] --out docs/img/td3_learning_curve.png
+
+Reads the CSV scalars the recipe logs (eval/success_rate, eval/wall_s, train/success_rate).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from torchnav.render import read_scalars  # noqa: E402
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("runs", nargs="+")
+    p.add_argument("--out", default="docs/img/td3_learning_curve.png")
+    a = p.parse_args()
+    fig, (ax_t, ax_f) = plt.subplots(1, 2, figsize=(9, 3.4))
+    for run in a.runs:
+        s = read_scalars(run)
+        if "eval/success_rate" not in s:
+            raise SystemExit(f"{run}: no eval/success_rate logged")
+        ev, wall = s["eval/success_rate"], s["eval/wall_s"]
+        label = Path(run).name
+        ax_f.plot(ev[:, 0], 100 * ev[:, 1], marker="o", ms=3, label=label)
+        ax_t.plot(wall[:, 1], 100 * ev[:, 1], marker="o", ms=3, label=label)
+    for ax, xl in ((ax_t, "wall-clock time [s]"), (ax_f, "frames (env steps)")):
+        ax.axhline(95, color="0.5", ls="--", lw=0.8)
+        ax.set_xlabel(xl)
+        ax.set_ylabel("eval success [%] (goals anywhere)")
+        ax.set_ylim(0, 100)
+        ax.grid(alpha=0.3)
+    ax_f.legend(fontsize=7)
+    fig.tight_layout()
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(a.out, dpi=110)
+    print(f"wrote {a.out}")
+
+
+if __name__ == "__main__":
+    main()
