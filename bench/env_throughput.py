@@ -162,6 +162,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--repeats", type=int, default=5, help="timed runs (collector: timed batches); the median is reported (default 5)")
     p.add_argument("--warmup", type=int, default=5, help="untimed steps before timing (default 5)")
     p.add_argument("--batch-steps", type=int, default=8, help="collector frames_per_batch = num_envs * this (default 8)")
+    p.add_argument("--pool", type=int, default=0, help="reset.pool of the env: episodes pre-sampled per refill (default 0: exact resets)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object per line on stdout (tables go to stderr)")
     p.add_argument("--quick", action="store_true", help="64 envs, few steps: a smoke test")
@@ -190,7 +191,7 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
         print(warn, file=log)
     if args.json:
         common.emit_json({"bench": "env_machine", "device": args.device, **info})
-    env = make_env(args.map, num_envs=args.num_envs, device=args.device, seed=args.seed)
+    env = make_env(args.map, num_envs=args.num_envs, device=args.device, seed=args.seed, reset={"pool": args.pool})
     env.reset()
     records = []
     for fn in (bench_raw, bench_env_step, bench_collector):

@@ -86,6 +86,7 @@ class ResetConfig:
     start_clearance: float = 0.3  # m, free gap around the robot disc at the start pose
     goal_clearance: float = 0.4  # m, distance of the goal point from any obstacle
     candidates: int = 32  # rejection-sampling candidates per env and object
+    pool: int = 0  # 0: sample exactly the envs being reset; N > 0: sample N episodes at a time and hand them out
 
 
 @dataclass(frozen=True)
@@ -115,6 +116,7 @@ class NavConfig:
             (len(self.action.discrete_set) >= 2, "action.discrete_set needs at least 2 actions"),
             (self.observation.history >= 1, "observation.history must be >= 1"),
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),
+            (self.reset.pool >= 0, "reset.pool must be >= 0"),
             (self.reset.start_clearance >= 0 and self.reset.goal_clearance >= 0, "reset clearances must be >= 0 m"),
         ]
         for ok, msg in checks:

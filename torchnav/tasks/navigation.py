@@ -70,6 +70,8 @@ class NavTask:
         scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
+        self._pool: NavState | None = None  # pre-sampled episodes (cfg.reset.pool > 0)
+        self._pool_pos = 0
 
     # -- actions and observations -------------------------------------------------
 
@@ -138,21 +140,40 @@ class NavTask:
     def initial_state(self, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
         """Fresh episodes in every env."""
         idx = torch.arange(self.num_envs, device=self.device)
+        self._pool = None
         return self._fresh(idx, cur, gen), after_placements(cur, self.cfg.curriculum, torch.tensor(self.num_envs, device=self.device))
 
     def reset(self, state: NavState, mask: Tensor, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
         """New episodes for the envs where ``mask`` ``(B,)`` is True; the others are left bit-identical.
 
-        One host synchronisation (``nonzero``) selects the envs; only they are sampled.
-        Each placed goal advances the curriculum.
+        One host synchronisation (``nonzero``) selects the envs; only they are sampled
+        (or, with ``cfg.reset.pool > 0``, taken from a pool of pre-sampled episodes the
+        task keeps between calls). Each placed goal advances the curriculum.
         """
         idx = mask.reshape(-1).nonzero().squeeze(-1)
         if idx.numel() == 0:
             return state, cur
-        fresh = self._fresh(idx, cur, gen)
-        state = state.clone()  # out of place: callers may hold views of the old state
-        state[idx] = fresh
+        fresh = self._fresh(idx, cur, gen) if self.cfg.reset.pool == 0 else self._from_pool(idx.numel(), cur, gen)
+        # Out of place, leaf by leaf: callers may hold views of the old state.
+        state = state.apply(lambda old, new: old.index_put((idx,), new), fresh)
         return state, after_placements(cur, self.cfg.curriculum, torch.tensor(idx.numel(), device=self.device))
+
+    def _from_pool(self, n: int, cur: CurriculumState, gen: torch.Generator) -> NavState:
+        """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short.
+
+        Every env of a task shares the map's fixed world, so episodes sampled for any
+        env fit every env. Sampling many at once costs about as much as sampling a
+        few (the reset samplers are bound by per-operation overhead), so with a pool
+        a reset costs an index copy most of the time. Goals come from the curriculum
+        radius at the time the pool was filled.
+        """
+        if self._pool is None or self._pool_pos + n > self._pool.batch_size[0]:
+            size = max(self.cfg.reset.pool, n)
+            self._pool = self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, gen)
+            self._pool_pos = 0
+        out = self._pool[self._pool_pos : self._pool_pos + n]
+        self._pool_pos += n
+        return out
 
     # -- step -------------------------------------------------------------------------
 
