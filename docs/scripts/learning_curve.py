@@ -38,6 +38,7 @@ def main() -> None:
         ax.set_ylabel("eval success [%] (goals anywhere)")
         ax.set_ylim(0, 100)
         ax.grid(alpha=0.3)
+    ax_f.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:.0f}k")
     ax_f.legend(fontsize=7)
     fig.tight_layout()
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
