@@ -39,7 +39,7 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
     it = iter(argv)
     for a in it:
         if a in ("-h", "--help"):
-            print(__doc__ if False else f"usage: python recipes/{name}.py [--config FILE] [--resume [RUN_DIR]] [key.sub=value ...]\n"
+            print(f"usage: python recipes/{name}.py [--config FILE] [--resume[=RUN_DIR]] [key.sub=value ...]\n"
                   f"defaults and documentation of every key: {path}")
             sys.exit(0)
         if a == "--config":

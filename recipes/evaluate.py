@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import torch
+import yaml
 from omegaconf import OmegaConf
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -83,7 +84,7 @@ def main(argv: list[str]) -> dict:
         parts = k.split(".")
         for part in parts[:-1]:
             node = node.setdefault(part, {})
-        node[parts[-1]] = __import__("yaml").safe_load(v)
+        node[parts[-1]] = yaml.safe_load(v)
     nav = NavConfig.from_dict(merge(C.to_dict(nav), over), where="--set")
     cfg = eval_config(nav, map=a.map, anywhere=not a.curriculum)
     res = summarize(run_episodes(actor, cfg, a.episodes, seed=a.seed, device=a.device))
