@@ -67,8 +67,20 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
         cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(overrides))
     except (ConfigAttributeError, ConfigKeyError) as e:
         key = getattr(e, "full_key", None) or str(e).splitlines()[0]
-        raise ConfigError(f"unknown config key '{key}' (see {path} for every valid key)") from None
+        raise ConfigError(f"unknown config key '{key}'{_did_you_mean(cfg, str(key))} (see {path} for every valid key)") from None
     return cfg
+
+
+def _did_you_mean(cfg: DictConfig, key: str) -> str:
+    """A close valid key for an unknown dotted ``key``, as a message suffix."""
+    import difflib
+
+    parent, _, leaf = key.rpartition(".")
+    node = OmegaConf.select(cfg, parent) if parent else cfg
+    if not isinstance(node, DictConfig):
+        return ""
+    close = difflib.get_close_matches(leaf, [str(k) for k in node.keys()], n=1)
+    return f" (did you mean '{parent + '.' if parent else ''}{close[0]}'?)" if close else ""
 
 
 def nav_config(cfg: DictConfig, **extra: Any) -> NavConfig:
