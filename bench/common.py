@@ -21,6 +21,7 @@ from __future__ import annotations
 import ctypes
 import gc
 import json
+import math
 import os
 import platform
 import resource
@@ -279,3 +280,19 @@ def _numeric(s: str) -> bool:
 def emit_json(record: dict[str, Any]) -> None:
     """One JSON object on one line of stdout."""
     print(json.dumps(record, sort_keys=False), flush=True)
+
+
+def calibrate(call: Callable[[], Any], device: str, run_seconds: float, lo: int, hi: int) -> int:
+    """Calls per timed run so that a run lasts about ``run_seconds``."""
+    n, dt = 1, 0.0
+    while True:
+        sync(device)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            call()
+        sync(device)
+        dt = time.perf_counter() - t0
+        if dt >= min(0.05, run_seconds / 4) or n >= hi:
+            break
+        n *= 2
+    return int(max(lo, min(hi, math.ceil(run_seconds * n / max(dt, 1e-9)))))

@@ -57,20 +57,7 @@ def _record(mode: str, args: argparse.Namespace, t: common.Timing | None, mem: c
 
 
 def _steps(args: argparse.Namespace, call, device: str) -> int:
-    if args.steps:
-        return args.steps
-    # Calibrate: about --run-seconds per timed run.
-    n = 1
-    while True:
-        common.sync(device)
-        t0 = time.perf_counter()
-        for _ in range(n):
-            call()
-        common.sync(device)
-        dt = time.perf_counter() - t0
-        if dt >= 0.05 or n >= 10_000:
-            return max(3, min(10_000, round(args.run_seconds * n / max(dt, 1e-9))))
-        n *= 2
+    return args.steps or common.calibrate(call, device, args.run_seconds, lo=3, hi=10_000)
 
 
 def bench_raw(env, args: argparse.Namespace) -> dict[str, Any]:

@@ -172,22 +172,6 @@ def self_check(device: str) -> None:
 # -- timing ----------------------------------------------------------------------------------------
 
 
-def calibrate(call: Callable[[], Any], device: str, run_seconds: float, lo: int, hi: int) -> int:
-    """Calls per timed run so that a run lasts about ``run_seconds``."""
-    n, dt = 1, 0.0
-    while True:
-        common.sync(device)
-        t0 = time.perf_counter()
-        for _ in range(n):
-            call()
-        common.sync(device)
-        dt = time.perf_counter() - t0
-        if dt >= min(0.05, run_seconds / 4) or n >= hi:
-            break
-        n *= 2
-    return int(max(lo, min(hi, math.ceil(run_seconds * n / max(dt, 1e-9)))))
-
-
 def bench_one(mode: str, num_envs: int, device: str, args: argparse.Namespace) -> dict[str, Any]:
     params = bench_params()
     state, world, actions = make_load(num_envs, device, seed=args.seed)
@@ -219,7 +203,7 @@ def bench_one(mode: str, num_envs: int, device: str, args: argparse.Namespace) -
             rec["compile_s"] = round(time.perf_counter() - t0, 2)
         for _ in range(args.warmup):
             call()
-        steps = args.steps or calibrate(call, device, args.run_seconds, lo=3, hi=100_000)
+        steps = args.steps or common.calibrate(call, device, args.run_seconds, lo=3, hi=100_000)
         t = common.time_calls(call, items_per_call=num_envs, steps=steps, repeats=args.repeats, warmup=0, device=device)
         with common.PeakMemory(device) as mem:
             for _ in range(3):
@@ -287,7 +271,7 @@ def stage_breakdown(num_envs: int, device: str, args: argparse.Namespace, compil
                 compile_s = round(time.perf_counter() - t0, 2)
             for _ in range(args.warmup):
                 f()
-            steps = args.steps or calibrate(f, device, args.run_seconds / 2, lo=3, hi=100_000)
+            steps = args.steps or common.calibrate(f, device, args.run_seconds / 2, lo=3, hi=100_000)
             t = common.time_calls(f, items_per_call=num_envs, steps=steps, repeats=args.repeats, warmup=0, device=device)
             out.append({"bench": "sim_stages", "device": device, "num_envs": num_envs, "mode": variant, "stage": name,
                         "call_us": round(t.call_us, 2), "env_steps_per_s": round(t.median, 1), "compile_s": compile_s})

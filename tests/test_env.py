@@ -27,14 +27,6 @@ OUTPUT_KEYS = {
 EPISODE_KEYS = {"return", "length", "path_length", "straight_line"}
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    # Many small ops: on a busy 2-core machine intra-op threads make them 20x slower.
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 class SeededPolicy:
     """Uniform random actions from its own generator (never the global RNG)."""

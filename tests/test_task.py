@@ -28,15 +28,6 @@ from torchnav.tasks.sampling import place_random_objects, sample_goals, sample_s
 EPS = 1e-4  # m, float32 slack on geometric guarantees
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    # These tests run many small ops; on a busy 2-core machine intra-op threads make them
-    # 20x slower (threads wait on each other), so run them single-threaded.
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 def make_task(map: str = "arena", n: int = 4, **over) -> NavTask:
     return NavTask(NavConfig.from_dict({"map": map, **over}), n)
