@@ -5,9 +5,10 @@ path-length ratio, with 95% confidence intervals.
     python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
     python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to <CKPT dir>/eval_episodes.mcap
 
-Accepts actor checkpoints (``actor.pt``, format ``torchnav-actor-v1``) and TD3 training
-checkpoints (``checkpoint.pt``). Episodes use seeds ``seed, seed+1, ...`` through the env
-generator, so the same arguments give the same scenarios for every policy.
+Accepts the ``actor.pt`` any recipe writes (format ``torchnav-actor-v2``, see
+``torchnav/policy.py``) and the recipes' training checkpoints (``checkpoint.pt``).
+Episodes use seeds ``seed, seed+1, ...`` through the env generator, so the same
+arguments give the same scenarios for every policy.
 """
 
 from __future__ import annotations
@@ -19,13 +20,12 @@ from pathlib import Path
 
 import torch
 import yaml
-from omegaconf import OmegaConf
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from td3_lidar import make_actor  # noqa: E402
 
 from torchnav.config import merge  # noqa: E402
+from torchnav.policy import load_policy  # noqa: E402
 from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize  # noqa: E402
 from torchnav.tasks import NavConfig  # noqa: E402
 
@@ -33,26 +33,11 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "t
 
 
 def load_actor(path: Path):
-    """Actor module and the NavConfig it was trained with, from an actor or TD3 checkpoint."""
-    ck = C.load_checkpoint(path)
-    fmt = ck.get("format")
-    if fmt == "torchnav-actor-v1":
-        actor = make_actor(ck["obs_size"], ck["act_size"], ck["hidden"])
-        state, nav = ck["actor"], ck["nav_config"]
-    elif fmt == "torchnav-td3-v1":
-        prefix = "actor_network_params."
-        state = {k[len(prefix):]: v for k, v in ck["loss"].items() if k.startswith(prefix)}
-        if "module.0.0.weight" not in state:
-            raise RuntimeError(f"{path}: unrecognised actor parameters {sorted(state)[:4]}")
-        actor = make_actor(state["module.0.0.weight"].shape[1], 2, ck["config"]["train"]["hidden"])
-        nav = C.to_dict(C.nav_config(OmegaConf.create(ck["config"])))
-    else:
-        raise RuntimeError(f"{path}: not a torchnav policy checkpoint (format {fmt!r})")
-    try:
-        actor.load_state_dict(state)
-    except RuntimeError as e:
-        raise RuntimeError(f"{path}: checkpoint does not match the actor network: {e}") from e
-    return actor, NavConfig.from_dict(nav, where=f"{path}:nav_config")
+    """Deterministic policy and the NavConfig it was trained with, from ``actor.pt`` or a recipe's ``checkpoint.pt``."""
+    sp = load_policy(path)
+    if sp.task != "nav":
+        raise RuntimeError(f"{path}: a {sp.task!r} policy; evaluate.py runs navigation policies")
+    return sp.policy, sp.config()
 
 
 def main(argv: list[str]) -> dict:
@@ -105,6 +90,6 @@ def main(argv: list[str]) -> dict:
 if __name__ == "__main__":
     try:
         main(sys.argv[1:])
-    except (C.ConfigError, FileNotFoundError, RuntimeError) as e:
+    except (C.ConfigError, FileNotFoundError, RuntimeError, ValueError) as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

@@ -31,14 +31,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 
 from torchnav.envs import NavEnv  # noqa: E402
+from torchnav.policy import Actor, policy_payload, save_policy  # noqa: E402
 from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize  # noqa: E402
 
 REPLAY_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))
 
 
 def make_actor(obs_size: int, act_size: int, hidden) -> TensorDictModule:
-    net = nn.Sequential(MLP(in_features=obs_size, out_features=act_size, num_cells=list(hidden), activation_class=nn.ReLU), nn.Tanh())
-    return TensorDictModule(net, in_keys=["observation"], out_keys=["action"])
+    return TensorDictModule(Actor(obs_size, act_size, hidden), in_keys=["observation"], out_keys=["action"])
 
 
 def make_critic(obs_size: int, act_size: int, hidden) -> ValueOperator:
@@ -52,7 +52,7 @@ def main(argv: list[str]) -> dict:
     ckpt = None
     if resume_dir is not None:
         ckpt = C.load_checkpoint(resume_dir / "checkpoint.pt")
-        if ckpt.get("format") != "torchnav-td3-v1":
+        if ckpt.get("format") != "torchnav-td3-v2":
             raise RuntimeError(f"{resume_dir / 'checkpoint.pt'} is not a TD3 training checkpoint (format {ckpt.get('format')!r})")
         cfg.logger.run_dir = str(resume_dir)
     if cfg.threads:
@@ -99,16 +99,16 @@ def main(argv: list[str]) -> dict:
         counters.update(ckpt["counters"])
         print(f"resuming {run} at {counters['frames']} frames, curriculum radius {env.curriculum.radius.item():.2f} m")
 
+    policy_meta = {"task": "nav", "task_config": C.to_dict(nav), "algorithm": "td3"}
+
     def save(path: Path) -> None:
         C.save_checkpoint(path, {
-            "format": "torchnav-td3-v1", "loss": loss.state_dict(), "opt_actor": opt_actor.state_dict(),
+            "format": "torchnav-td3-v2", "loss": loss.state_dict(), "opt_actor": opt_actor.state_dict(),
             "opt_critic": opt_critic.state_dict(), "exploration": exploration.state_dict(), "env": env.state_dict(),
             "rng": C.rng_states(), "counters": dict(counters), "config": C.config_dict(cfg),
+            "policy": policy_payload(actor.module, **policy_meta),
         })
-        C.save_checkpoint(run / "actor.pt", {
-            "format": "torchnav-actor-v1", "actor": actor.state_dict(), "hidden": list(tc.hidden),
-            "obs_size": obs_size, "act_size": act_size, "nav_config": C.to_dict(nav),
-        })
+        save_policy(run / "actor.pt", actor.module, **policy_meta)
 
     # -- collection ------------------------------------------------------------------------
     remaining = int(tc.total_frames) - int(counters["frames"])

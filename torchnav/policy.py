@@ -1,0 +1,166 @@
+"""Saved policies: one small actor format shared by every recipe, evaluation, comparison and export.
+
+Every recipe (TD3, PPO, SAC, DQN) saves its deterministic policy as ``actor.pt``:
+
+    {"format": "torchnav-actor-v2", "obs_size", "out_size", "hidden", "activation",
+     "output": "tanh" | "argmax", "state": Actor.state_dict(), "action_table": (A, 2) or None,
+     "task": "nav" | "line", "task_config": dict, "algorithm": str}
+
+The network is always ``normalise -> Linear/activation stack -> head``: continuous
+policies put ``tanh`` on the head (actions in ``[-1, 1]``), value-based ones take the
+``argmax`` of the Q-values over a discrete action set (``action_table`` holds the
+command of each action). Stochastic policies save their deterministic mean action
+(PPO's and SAC's ``tanh(loc)``), which is what evaluation and export use.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+
+FORMAT = "torchnav-actor-v2"
+ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
+OUTPUTS = ("tanh", "argmax")
+
+
+class Actor(nn.Module):
+    """Deterministic policy network ``obs (..., obs_size) -> out (..., out_size)``.
+
+    ``(obs - obs_loc) / obs_scale`` feeds an MLP with ``hidden`` layers; with
+    ``output="tanh"`` the result is squashed into ``[-1, 1]`` (continuous actions),
+    with ``output="argmax"`` it is left as Q-values (``to_policy`` picks the best).
+    """
+
+    def __init__(self, obs_size: int, out_size: int, hidden: Sequence[int] = (256, 256), activation: str = "relu", output: str = "tanh"):
+        super().__init__()
+        if activation not in ACTIVATIONS:
+            raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {activation!r}")
+        if output not in OUTPUTS:
+            raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}")
+        self.obs_size, self.out_size, self.hidden = int(obs_size), int(out_size), [int(h) for h in hidden]
+        self.activation, self.output = activation, output
+        self.register_buffer("obs_loc", torch.zeros(obs_size))
+        self.register_buffer("obs_scale", torch.ones(obs_size))
+        layers: list[nn.Module] = []
+        width = obs_size
+        for h in self.hidden:
+            layers += [nn.Linear(width, h), ACTIVATIONS[activation]()]
+            width = h
+        layers.append(nn.Linear(width, out_size))
+        self.net = nn.Sequential(*layers)
+
+    def set_normalization(self, loc: torch.Tensor, scale: torch.Tensor) -> None:
+        """Observation statistics ``(obs_size,)``; ``scale`` must be positive."""
+        if loc.shape != (self.obs_size,) or scale.shape != (self.obs_size,):
+            raise ValueError(f"normalisation needs shapes ({self.obs_size},), got {tuple(loc.shape)} and {tuple(scale.shape)}")
+        if not bool((scale > 0).all()):
+            raise ValueError("normalisation scale must be positive")
+        self.obs_loc.copy_(loc)
+        self.obs_scale.copy_(scale)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        y = self.net((obs - self.obs_loc) / self.obs_scale)
+        return torch.tanh(y) if self.output == "tanh" else y
+
+    def linear_layers(self) -> list[nn.Linear]:
+        return [m for m in self.net if isinstance(m, nn.Linear)]
+
+    def spec(self) -> dict[str, Any]:
+        return {"obs_size": self.obs_size, "out_size": self.out_size, "hidden": list(self.hidden),
+                "activation": self.activation, "output": self.output}
+
+
+class _ArgmaxOneHot(nn.Module):
+    """Q-values ``(..., A)`` -> one-hot action ``(..., A)`` of the best action."""
+
+    def forward(self, q: torch.Tensor) -> torch.Tensor:
+        return torch.nn.functional.one_hot(q.argmax(-1), q.shape[-1]).to(torch.long)
+
+
+def to_policy(actor: Actor, in_key: str = "observation") -> TensorDictModule:
+    """A TensorDict policy writing ``"action"``: the tanh output, or a one-hot argmax for Q-networks."""
+    if actor.output == "tanh":
+        return TensorDictModule(actor, in_keys=[in_key], out_keys=["action"])
+    return TensorDictModule(nn.Sequential(actor, _ArgmaxOneHot()), in_keys=[in_key], out_keys=["action"])
+
+
+@dataclass
+class SavedPolicy:
+    """A loaded ``actor.pt``: the network, its TensorDict policy and what it was trained on."""
+
+    actor: Actor
+    policy: TensorDictModule
+    task: str
+    task_config: dict[str, Any]
+    algorithm: str
+    action_table: torch.Tensor | None = None
+    path: Path | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def config(self):
+        """The task config object (``NavConfig`` or the line task's config) it was trained with."""
+        if self.task == "nav":
+            from .tasks import NavConfig
+
+            return NavConfig.from_dict(self.task_config, where=f"{self.path}:task_config")
+        if self.task == "line":
+            from .tasks.line import LineConfig
+
+            return LineConfig.from_dict(self.task_config, where=f"{self.path}:task_config")
+        raise ValueError(f"{self.path}: unknown task {self.task!r}")
+
+
+def policy_payload(actor: Actor, *, task: str, task_config: dict[str, Any], algorithm: str,
+                   action_table: torch.Tensor | None = None, **extra: Any) -> dict[str, Any]:
+    """The ``actor.pt`` dictionary (also embedded in training checkpoints under ``"policy"``)."""
+    return {"format": FORMAT, **actor.spec(), "state": {k: v.detach().cpu() for k, v in actor.state_dict().items()},
+            "action_table": None if action_table is None else action_table.detach().cpu(),
+            "task": task, "task_config": task_config, "algorithm": algorithm, **extra}
+
+
+def save_policy(path: str | Path, actor: Actor, **kw: Any) -> None:
+    """Write ``actor.pt`` atomically (temporary file, then rename); ``kw`` as in ``policy_payload``."""
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(policy_payload(actor, **kw), tmp)
+    os.replace(tmp, path)
+
+
+def load_policy(path: str | Path, map_location: str | torch.device = "cpu") -> SavedPolicy:
+    """Load an ``actor.pt`` or a recipe's ``checkpoint.pt`` (which embeds one under ``"policy"``).
+
+    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` naming the
+    file for anything that is not a torchnav policy.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    try:
+        ck = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:  # noqa: BLE001 - re-raised with the file named
+        raise ValueError(f"cannot load {path}: {e}") from e
+    if not isinstance(ck, dict):
+        raise ValueError(f"{path}: not a torchnav policy checkpoint")
+    if ck.get("format") != FORMAT and isinstance(ck.get("policy"), dict):
+        ck = ck["policy"]
+    if ck.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a torchnav policy checkpoint (format {ck.get('format')!r}; expected {FORMAT!r})")
+    try:
+        actor = Actor(ck["obs_size"], ck["out_size"], ck["hidden"], ck["activation"], ck["output"])
+        actor.load_state_dict(ck["state"])
+    except (KeyError, RuntimeError, ValueError) as e:
+        raise ValueError(f"{path}: policy checkpoint is inconsistent: {e}") from e
+    actor.eval()
+    known = {"format", "obs_size", "out_size", "hidden", "activation", "output", "state", "action_table", "task", "task_config", "algorithm"}
+    return SavedPolicy(actor=actor, policy=to_policy(actor), task=ck["task"], task_config=ck["task_config"],
+                       algorithm=ck["algorithm"], action_table=ck.get("action_table"), path=path,
+                       extra={k: v for k, v in ck.items() if k not in known})
+
+
+__all__ = ["Actor", "FORMAT", "SavedPolicy", "load_policy", "policy_payload", "save_policy", "to_policy"]
