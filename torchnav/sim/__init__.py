@@ -3,6 +3,7 @@
 Nothing here knows about tasks, rewards or TorchRL.
 """
 
+from .floor import FloorSensorParams, band_coverage, build_segment_grid, floor_readings, nearest_distance, sensor_points
 from .geometry import box_corners, disc_clearance, points_clearance, point_box_distance, point_circle_distance, point_segment_distance
 from .kinematics import apply_limits, integrate, integrate_euler, integrate_exact, unicycle_to_wheels, wheels_to_unicycle
 from .lidar import cast_rays, hit_box, hit_circle, hit_segment, lidar_scan, ray_origins_and_angles, sectorize
@@ -17,4 +18,5 @@ __all__ = [
     "point_segment_distance", "points_clearance", "point_circle_distance", "point_box_distance", "box_corners",
     "integrate", "integrate_euler", "integrate_exact", "apply_limits", "wheels_to_unicycle",
     "unicycle_to_wheels", "wrap_angle", "safe_norm", "safe_hypot", "safe_sinc",
+    "FloorSensorParams", "sensor_points", "build_segment_grid", "nearest_distance", "band_coverage", "floor_readings",
 ]

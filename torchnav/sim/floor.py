@@ -1,0 +1,222 @@
+"""Downward-facing reflectance sensors over a floor line (tape on a floor).
+
+A line is a set of centreline segments ``(S, 4)`` ``[x1, y1, x2, y2]`` (m) and a
+width ``w``: the floor is "line" wherever the distance ``d`` to the nearest
+centreline segment is below ``w / 2``. Every env sees the same line, so the
+segments carry no batch dimension.
+
+Each sensor looks at a disc of radius ``r`` on the floor (its footprint) and reads
+the fraction of that disc covered by the line. Against a straight strip the
+fraction is exact::
+
+    coverage(d) = F(w/2 - d) - F(-w/2 - d),
+    F(t) = (acos(-u) + u sqrt(1 - u^2)) / pi,  u = clamp(t / r, -1, 1)
+
+where ``F(t)`` is the fraction of the disc lying left of a chord at offset ``t``
+from its centre. At corners and crossings the strip is the union of the nearest
+segments' strips, which the nearest-distance formula approximates (well for
+radii much larger than ``r``).
+
+Modes (``FloorSensorParams.mode``):
+
+* ``analog``: coverage plus Gaussian noise (explicit generator), clamped to [0, 1];
+* ``binary``: 1.0 where the (noisy) coverage exceeds ``threshold``, else 0.0;
+* ``smooth``: ``sigmoid((w/2 + r - d) / softness)``, a differentiable stand-in whose
+  gradient never vanishes (useful for gradient-based control through the sensor).
+
+Distances come from a :class:`SegmentGrid`: a uniform grid whose cells list the
+segments that can lie within ``reach`` of any point in the cell, so a query costs
+``M`` (the longest list) distance evaluations instead of ``S``. Distances beyond
+``reach`` read as ``reach``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .math import rotate, safe_hypot
+
+FLOOR_MODES = ("analog", "binary", "smooth")
+
+
+def _require(cond: bool, msg: str) -> None:
+    if not cond:
+        raise ValueError(msg)
+
+
+@dataclass(frozen=True)
+class FloorSensorParams:
+    """A straight array of ``count`` downward sensors across the robot's front.
+
+    Sensor ``i`` sits at ``(forward, -(count - 1) * spacing / 2 + i * spacing)`` in the
+    robot frame (x forward, y left): sensor 0 is the rightmost, the last the
+    leftmost (counter-clockwise order, like lidar rays).
+    """
+
+    count: int = 5  # number of sensors
+    spacing: float = 0.015  # m between neighbouring sensor centres
+    forward: float = 0.08  # m, offset of the array ahead of the wheel axle
+    radius: float = 0.005  # m, radius of each sensor's circular footprint on the floor
+    mode: str = "analog"  # "analog" | "binary" | "smooth"
+    threshold: float = 0.5  # coverage fraction above which a sensor reports the line ("binary", on-line test)
+    noise_std: float = 0.0  # std of additive Gaussian noise on the coverage fraction (needs a generator)
+    softness: float = 0.004  # m, sigmoid scale of the "smooth" mode
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.count, int) and self.count >= 1, f"sensors.count must be a positive int, got {self.count!r}")
+        _require(self.spacing >= 0, f"sensors.spacing must be >= 0 m, got {self.spacing!r}")
+        _require(self.radius > 0, f"sensors.radius must be > 0 m, got {self.radius!r}")
+        _require(self.mode in FLOOR_MODES, f"sensors.mode must be one of {FLOOR_MODES}, got {self.mode!r}")
+        _require(0.0 < self.threshold < 1.0, f"sensors.threshold must be in (0, 1), got {self.threshold!r}")
+        _require(self.noise_std >= 0, f"sensors.noise_std must be >= 0, got {self.noise_std!r}")
+        _require(self.softness > 0, f"sensors.softness must be > 0 m, got {self.softness!r}")
+
+    def offsets(self) -> list[tuple[float, float]]:
+        """Sensor centres ``(x, y)`` in the robot frame, m, in sensor order."""
+        y0 = -(self.count - 1) * self.spacing / 2
+        return [(self.forward, y0 + i * self.spacing) for i in range(self.count)]
+
+
+def sensor_points(pose: Tensor, params: FloorSensorParams) -> Tensor:
+    """World positions ``(B, K, 2)`` of the sensor centres for robot poses ``(B, 3)``."""
+    off = torch.tensor(params.offsets(), dtype=pose.dtype, device=pose.device)  # (K, 2)
+    th = pose[:, 2:3]
+    dx, dy = rotate(off[:, 0], off[:, 1], th)  # (B, K)
+    return torch.stack((pose[:, 0:1] + dx, pose[:, 1:2] + dy), dim=-1)
+
+
+# --------------------------------------------------------------------------- distances
+
+
+@dataclass(frozen=True)
+class SegmentGrid:
+    """Candidate lists of segments per grid cell (see the module docstring).
+
+    Attributes:
+        segments: ``(S, 4)`` centreline segments, m.
+        origin: ``(2,)`` lower-left corner of the grid, m. cell: cell size, m.
+        nx, ny: cells along x and y. reach: m, distances beyond it read ``reach``.
+        cand: ``(ny * nx, M)`` int64 segment indices per cell (row-major, y outer).
+        cand_mask: ``(ny * nx, M)`` bool, valid entries of ``cand``.
+    """
+
+    segments: Tensor
+    origin: Tensor
+    cell: float
+    nx: int
+    ny: int
+    reach: float
+    cand: Tensor
+    cand_mask: Tensor
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> "SegmentGrid":
+        return SegmentGrid(
+            segments=self.segments.to(device=device, dtype=dtype), origin=self.origin.to(device=device, dtype=dtype),
+            cell=self.cell, nx=self.nx, ny=self.ny, reach=self.reach,
+            cand=self.cand.to(device=device), cand_mask=self.cand_mask.to(device=device),
+        )
+
+
+def segment_distance(px: Tensor, py: Tensor, seg: Tensor) -> Tensor:
+    """Distance from points ``(px, py)`` to segments ``seg[..., 4]`` (all broadcast); gradient-safe."""
+    ax, ay, bx, by = seg.unbind(-1)
+    ex, ey = bx - ax, by - ay
+    wx, wy = px - ax, py - ay
+    ee = ex * ex + ey * ey
+    degenerate = ee <= 1e-12
+    t = ((wx * ex + wy * ey) / torch.where(degenerate, torch.ones_like(ee), ee)).clamp(0.0, 1.0)
+    t = torch.where(degenerate, torch.zeros_like(t), t)
+    return safe_hypot(wx - t * ex, wy - t * ey)
+
+
+def nearest_distance_brute(points: Tensor, segments: Tensor) -> Tensor:
+    """Distance ``(...)`` from points ``(..., 2)`` to the nearest of all segments ``(S, 4)`` (reference)."""
+    d = segment_distance(points[..., 0:1], points[..., 1:2], segments)
+    return d.amin(-1)
+
+
+def build_segment_grid(segments: Tensor, reach: float, cell: float | None = None, chunk: int = 4096) -> SegmentGrid:
+    """A :class:`SegmentGrid` over the segments' bounding box grown by ``reach`` (m).
+
+    A segment is listed in a cell when its distance to the cell centre is at most
+    ``reach`` plus half the cell diagonal, so every segment within ``reach`` of any
+    point of the cell is listed (triangle inequality). ``cell`` defaults to ``reach``.
+    Built once per track, on the segments' device.
+    """
+    _require(segments.dim() == 2 and segments.shape[-1] == 4 and segments.shape[0] >= 1, f"segments must be (S, 4) with S >= 1, got {tuple(segments.shape)}")
+    _require(reach > 0, f"reach must be > 0 m, got {reach!r}")
+    cell = float(reach if cell is None else cell)
+    seg = segments.detach().to(torch.float64)
+    lo = torch.minimum(seg[:, 0:2], seg[:, 2:4]).amin(0) - reach
+    hi = torch.maximum(seg[:, 0:2], seg[:, 2:4]).amax(0) + reach
+    nx, ny = (int(math.ceil(v)) for v in ((hi - lo) / cell).clamp(min=1).tolist())
+    iy, ix = torch.meshgrid(torch.arange(ny), torch.arange(nx), indexing="ij")
+    cx = (lo[0] + (ix.reshape(-1).to(seg) + 0.5) * cell).to(seg.device)
+    cy = (lo[1] + (iy.reshape(-1).to(seg) + 0.5) * cell).to(seg.device)
+    limit = reach + cell * math.sqrt(0.5)
+    near = torch.cat([segment_distance(cx[i:i + chunk, None], cy[i:i + chunk, None], seg) <= limit
+                      for i in range(0, cx.numel(), chunk)])  # (cells, S)
+    m = max(1, int(near.sum(-1).max()))
+    # Stable sort puts each cell's listed segments first, in index order.
+    order = torch.sort((~near).to(torch.int8), dim=-1, stable=True).indices[:, :m]
+    mask = torch.gather(near, 1, order)
+    return SegmentGrid(
+        segments=segments, origin=lo.to(segments), cell=cell, nx=nx, ny=ny, reach=float(reach),
+        cand=torch.where(mask, order, torch.zeros_like(order)), cand_mask=mask,
+    )
+
+
+def nearest_distance(points: Tensor, grid: SegmentGrid) -> Tensor:
+    """Distance ``(...)`` from points ``(..., 2)`` to the nearest centreline segment, capped at ``grid.reach``.
+
+    Exact (equal to :func:`nearest_distance_brute`) wherever that is below ``reach``.
+    Points outside the grid read ``reach``.
+    """
+    rel = (points - grid.origin) / grid.cell
+    ix = torch.floor(rel[..., 0]).long()
+    iy = torch.floor(rel[..., 1]).long()
+    inside = (ix >= 0) & (ix < grid.nx) & (iy >= 0) & (iy < grid.ny)
+    flat = torch.where(inside, iy.clamp(0, grid.ny - 1) * grid.nx + ix.clamp(0, grid.nx - 1), torch.zeros_like(ix))
+    cand = grid.cand[flat]  # (..., M)
+    seg = grid.segments[cand]  # (..., M, 4)
+    d = segment_distance(points[..., 0:1], points[..., 1:2], seg)
+    d = torch.where(grid.cand_mask[flat] & inside[..., None], d, torch.full_like(d, grid.reach))
+    return d.amin(-1).clamp(max=grid.reach)
+
+
+# --------------------------------------------------------------------------- readings
+
+
+def _disc_left_of(t: Tensor, radius: float) -> Tensor:
+    """Fraction of a disc of ``radius`` lying at offset ``< t`` from its centre along one axis."""
+    u = t / radius
+    inside = u.abs() < 1.0
+    us = torch.where(inside, u, torch.zeros_like(u))  # keep acos/sqrt away from |u| = 1 in backward
+    f = (torch.acos(-us) + us * torch.sqrt(1.0 - us * us)) / math.pi
+    return torch.where(inside, f, (u > 0).to(u.dtype))
+
+
+def band_coverage(d: Tensor, half_width: float, radius: float) -> Tensor:
+    """Fraction in [0, 1] of a disc of ``radius`` centred at distance ``d`` (m) from the centre
+    line of a straight band of half-width ``half_width`` (m) that the band covers."""
+    return (_disc_left_of(half_width - d, radius) - _disc_left_of(-half_width - d, radius)).clamp(0.0, 1.0)
+
+
+def floor_readings(d: Tensor, half_width: float, params: FloorSensorParams, generator: torch.Generator | None = None) -> Tensor:
+    """Sensor values ``(B, K)`` in [0, 1] from distances ``d`` ``(B, K)`` (m) to the line centre.
+
+    Noise is added only with ``params.noise_std > 0`` and a ``generator`` (``analog`` and
+    ``binary`` modes; the ``smooth`` mode is noise-free).
+    """
+    if params.mode == "smooth":
+        return torch.sigmoid((half_width + params.radius - d) / params.softness)
+    c = band_coverage(d, half_width, params.radius)
+    if params.noise_std > 0 and generator is not None:
+        c = (c + params.noise_std * torch.randn(c.shape, generator=generator, dtype=c.dtype, device=c.device)).clamp(0.0, 1.0)
+    if params.mode == "binary":
+        return (c > params.threshold).to(c.dtype)
+    return c

@@ -1,0 +1,176 @@
+"""Track files (YAML, optionally pointing at a PNG mask) -> :class:`~torchnav.tracks.track.Track`.
+
+The schema is documented key by key in ``docs/line.md``. Parsing is strict, like
+map files: an unknown key, a wrong type or an impossible corner radius raises
+:class:`TrackError` naming the file and the key path (``course.yaml: lines[1].corner_radius: ...``).
+
+Two kinds of file:
+
+* ``lines:`` polylines in metres, each optionally closed, with filleted corners
+  (``corner_radius``) or a Catmull-Rom spline (``smooth: true``);
+* ``image:`` a PNG mask (white line on black floor by default) with ``resolution``
+  in m per pixel; see :mod:`torchnav.tracks.png`.
+"""
+
+from __future__ import annotations
+
+import os
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..maps.loader import _Ctx, _DuplicateKey, _is_number, _Loader, _mapping, _number, _show, _vector
+from .geometry import CurveError, catmull_rom, fillet_polyline, resample
+from .track import Track, TrackError
+
+DEFAULT_SPACING = 0.02  # m
+
+
+class _TrackCtx(_Ctx):
+    def fail(self, key: str, msg: str) -> TrackError:  # type: ignore[override]
+        return TrackError(f"{self.source}: {key}: {msg}" if key else f"{self.source}: {msg}")
+
+
+def _points(ctx: _Ctx, v: Any, key: str, min_n: int) -> np.ndarray:
+    ok = isinstance(v, list) and len(v) >= min_n and all(
+        isinstance(p, list) and len(p) == 2 and all(_is_number(x) for x in p) for p in v
+    )
+    if not ok:
+        raise ctx.fail(key, f"expected a list of at least {min_n} [x, y] points in m, got {_show(v)}")
+    return np.asarray(v, dtype=np.float64)
+
+
+def _bool(ctx: _Ctx, v: Any, key: str) -> bool:
+    if not isinstance(v, bool):
+        raise ctx.fail(key, f"expected true or false, got {_show(v)}")
+    return v
+
+
+def _curve(ctx: _Ctx, v: dict, key: str, spacing: float, force_closed: bool = False) -> tuple[np.ndarray, bool]:
+    """A resampled polyline from a line entry's ``points``, ``closed``, ``corner_radius``, ``smooth``."""
+    closed = True if force_closed else _bool(ctx, v.get("closed", False), f"{key}.closed")
+    pts = _points(ctx, v["points"], f"{key}.points", 3 if closed else 2)
+    smooth = _bool(ctx, v.get("smooth", False), f"{key}.smooth")
+    cr = v.get("corner_radius", 0.0)
+    if smooth and "corner_radius" in v:
+        raise ctx.fail(f"{key}.corner_radius", "give either corner_radius or smooth: true, not both")
+    if isinstance(cr, list):
+        radii = np.asarray(_vector(ctx, cr, f"{key}.corner_radius", len(pts), "nonneg"))
+    else:
+        radii = np.full(len(pts), _number(ctx, cr, f"{key}.corner_radius", "nonneg"))
+    try:
+        dense = catmull_rom(pts, closed) if smooth else fillet_polyline(pts, radii, closed)
+        return resample(dense, spacing, closed), closed
+    except CurveError as e:
+        raise ctx.fail(f"{key}.corner_radius" if "radi" in str(e) else f"{key}.points", str(e)) from None
+
+
+def _walls(ctx: _Ctx, v: Any) -> np.ndarray:
+    if not isinstance(v, list):
+        raise ctx.fail("walls", f"expected a list of [x1, y1, x2, y2] segments in m, got {_show(v)}")
+    return np.asarray([_vector(ctx, w, f"walls[{i}]", 4) for i, w in enumerate(v)], dtype=np.float64).reshape(-1, 4)
+
+
+def _segments(line: np.ndarray) -> np.ndarray:
+    return np.concatenate((line[:-1], line[1:]), axis=1)
+
+
+LINE_KEYS = ("points", "closed", "corner_radius", "smooth", "lap")
+COMMON_KEYS = ("name", "description", "spacing", "walls")
+IMAGE_KEYS = ("image", "resolution", "origin", "threshold", "invert", "width", "lap")
+
+
+def parse_track(data: Any, source: str = "<dict>", default_name: str = "track", base_dir: str | os.PathLike | None = None) -> Track:
+    """Validate a parsed track file (a dict) and build the :class:`Track`.
+
+    ``base_dir`` resolves a relative ``image:`` path (the YAML file's folder).
+    """
+    ctx = _TrackCtx(source)
+    if not isinstance(data, dict):
+        raise ctx.fail("", f"a track file must be a mapping with 'lines' or 'image', got {_show(data)}")
+    if "image" in data:
+        d = _mapping(ctx, data, "", ("image", "resolution"), COMMON_KEYS + IMAGE_KEYS[2:])
+    else:
+        d = _mapping(ctx, data, "", ("width", "lines"), COMMON_KEYS)
+    name = d.get("name", default_name)
+    desc = d.get("description", "")
+    for k, val in (("name", name), ("description", desc)):
+        if not isinstance(val, str):
+            raise ctx.fail(k, f"expected a string, got {_show(val)}")
+    spacing = _number(ctx, d.get("spacing", DEFAULT_SPACING), "spacing", "pos")
+    walls = _walls(ctx, d.get("walls", []))
+    if "image" in d:
+        from .png import track_from_png
+
+        return track_from_png(ctx, d, name, desc, spacing, walls, base_dir)
+    width = _number(ctx, d["width"], "width", "pos")
+    lines_v = d["lines"]
+    if not isinstance(lines_v, list) or not lines_v:
+        raise ctx.fail("lines", f"expected a non-empty list of lines, got {_show(lines_v)}")
+    lines, closed, lap_flags = [], [], []
+    for i, lv in enumerate(lines_v):
+        key = f"lines[{i}]"
+        lv = _mapping(ctx, lv, key, ("points",), LINE_KEYS[1:])
+        line, c = _curve(ctx, lv, key, spacing)
+        lines.append(line)
+        closed.append(c)
+        lap_flags.append(_bool(ctx, lv.get("lap", False), f"{key}.lap"))
+    if sum(lap_flags) > 1:
+        raise ctx.fail("lines", "only one line may have lap: true")
+    if any(lap_flags):
+        lap_i = lap_flags.index(True)
+        if not closed[lap_i]:
+            raise ctx.fail(f"lines[{lap_i}].lap", "the lap line must be closed (closed: true)")
+    elif any(closed):
+        lap_i = closed.index(True)
+    else:
+        raise ctx.fail("lines", "no closed line: mark a closed line with lap: true to define laps")
+    return Track(
+        name=name, width=width, segments=np.concatenate([_segments(ln) for ln in lines]), lines=tuple(lines),
+        lap=lines[lap_i], walls=walls, spacing=spacing, source=source, description=desc,
+    )
+
+
+def _parse_text(text: str, source: str, default_name: str, base_dir: str | os.PathLike | None) -> Track:
+    try:
+        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
+    except _DuplicateKey as e:
+        raise TrackError(f"{source}: {e.key}: duplicate key at line {e.mark.line + 1}") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise TrackError(f"{source}: YAML syntax error{where}: {getattr(e, 'problem', None) or e}") from None
+    return parse_track(data, source, default_name, base_dir)
+
+
+def _data_dir():
+    return resources.files(__package__).joinpath("data")
+
+
+def available_tracks() -> list[str]:
+    """Names of the tracks shipped with torchnav (stems of ``torchnav/tracks/data/*.yaml``)."""
+    return sorted(p.name[: -len(".yaml")] for p in _data_dir().iterdir() if p.name.endswith(".yaml"))
+
+
+def load_track(name_or_path: str | os.PathLike) -> Track:
+    """Load a shipped track by name (``"course"``) or a track file by path (``"my/track.yaml"``).
+
+    A string counts as a path when it contains a path separator or ends in ``.yaml``/``.yml``.
+    """
+    s = str(name_or_path)
+    if isinstance(name_or_path, os.PathLike) or "/" in s or os.sep in s or s.endswith((".yaml", ".yml")):
+        path = Path(name_or_path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise TrackError(f"{s}: track file not found") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise TrackError(f"{s}: cannot read track file: {e}") from None
+        return _parse_text(text, s, path.stem, path.parent)
+    res = _data_dir().joinpath(s + ".yaml")
+    if not res.is_file():
+        raise TrackError(f"unknown track {s!r}; available tracks: {', '.join(available_tracks())} (or pass a path to a .yaml file)")
+    return _parse_text(res.read_text(encoding="utf-8"), str(res), s, None)
