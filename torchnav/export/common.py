@@ -1,0 +1,169 @@
+"""What every exporter shares: the network as plain float32 arrays, the PyTorch reference and test inputs.
+
+An exported policy is always the ``torchnav.policy.Actor`` computation
+
+    x = (obs - obs_loc) / obs_scale                 (obs_size,)
+    x = act(W_k x + b_k)   for each hidden layer    W_k: (out, in), row-major as in nn.Linear
+    y = W_L x + b_L                                 (out_size,)
+    tanh head:   action = tanh(y)                   (out_size,) in [-1, 1]
+    argmax head: index = argmax(y), action = action_table[index]   (2,)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..policy import Actor, SavedPolicy
+
+
+@dataclass
+class Network:
+    """The network of an actor as float32 numpy arrays, plus what it was trained for.
+
+    ``layers`` holds ``(weight (out, in), bias (out,))`` pairs, first to last;
+    ``action_table`` is ``(A, 2)`` for ``output="argmax"`` and ``None`` otherwise.
+    """
+
+    obs_loc: np.ndarray
+    obs_scale: np.ndarray
+    layers: list[tuple[np.ndarray, np.ndarray]]
+    activation: str
+    output: str
+    action_table: np.ndarray | None
+    metadata: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def obs_size(self) -> int:
+        return int(self.obs_loc.shape[0])
+
+    @property
+    def out_size(self) -> int:
+        """Width of the last layer: actions (tanh) or Q-values (argmax)."""
+        return int(self.layers[-1][0].shape[0])
+
+    @property
+    def act_size(self) -> int:
+        """Floats written per action: ``out_size`` (tanh) or the action table's width (argmax)."""
+        return self.out_size if self.action_table is None else int(self.action_table.shape[1])
+
+    @property
+    def max_width(self) -> int:
+        return max(w.shape[0] for w, _ in self.layers)
+
+    def footprint(self) -> dict[str, int]:
+        """Bytes of constant data (flash) and of working buffers (RAM) in the C export, and multiply-adds per call."""
+        params = sum(w.size + b.size for w, b in self.layers)
+        consts = params + 2 * self.obs_size + (0 if self.action_table is None else self.action_table.size)
+        return {"parameters": int(params), "flash_bytes": 4 * int(consts),
+                "ram_bytes": 4 * 2 * max(self.max_width, self.obs_size),
+                "macs": int(sum(w.size for w, _ in self.layers))}
+
+
+def _version() -> str:
+    from .. import __version__
+
+    return __version__
+
+
+def network_of(policy: SavedPolicy | Actor, action_table: torch.Tensor | None = None) -> Network:
+    """Plain arrays of a loaded policy (or a bare ``Actor`` plus its ``action_table`` ``(A, 2)``).
+
+    Raises ``ValueError`` for non-finite parameters or an argmax actor without a
+    matching action table.
+    """
+    meta: dict[str, str] = {"torchnav_version": _version()}
+    if isinstance(policy, SavedPolicy):
+        actor, table = policy.actor, policy.action_table if action_table is None else action_table
+        meta.update(algorithm=str(policy.algorithm), task=str(policy.task))
+        if policy.path is not None:
+            meta["source"] = policy.path.name
+    elif isinstance(policy, Actor):
+        actor, table = policy, action_table
+    else:
+        raise TypeError(f"expected a SavedPolicy or an Actor, got {type(policy).__name__}")
+
+    def arr(t: torch.Tensor) -> np.ndarray:
+        a = t.detach().cpu().to(torch.float32).numpy().copy()
+        if not np.isfinite(a).all():
+            raise ValueError("the policy has non-finite parameters (NaN or inf); cannot export")
+        return a
+
+    if actor.output not in ("tanh", "argmax"):
+        raise ValueError(f"only policies with a 'tanh' or 'argmax' head can be exported, got output={actor.output!r}")
+    layers = [(arr(m.weight), arr(m.bias)) for m in actor.linear_layers()]
+    if actor.output == "argmax":
+        if table is None:
+            raise ValueError("a discrete (argmax) policy needs its action_table (A, 2) to export commands")
+        table_np = arr(torch.as_tensor(table)).reshape(len(table), -1)
+        if table_np.shape[0] != actor.out_size:
+            raise ValueError(f"action_table has {table_np.shape[0]} rows but the network outputs {actor.out_size} Q-values")
+    else:
+        table_np = None
+    meta.update(obs_size=str(actor.obs_size), act_size=str(actor.out_size if table_np is None else table_np.shape[1]),
+                hidden=",".join(str(h) for h in actor.hidden), activation=actor.activation, output=actor.output)
+    return Network(arr(actor.obs_loc), arr(actor.obs_scale), layers, actor.activation, actor.output, table_np, meta)
+
+
+def random_observations(net: Network, n: int, seed: int = 0) -> np.ndarray:
+    """``(n, obs_size)`` float32 raw observations, ``obs_loc + obs_scale * N(0, 1)``.
+
+    Drawn in the normalised space the network was trained in, so hidden units and the
+    head see realistic magnitudes rather than saturating.
+    """
+    g = np.random.default_rng(seed)
+    return (net.obs_loc + net.obs_scale * g.standard_normal((n, net.obs_size))).astype(np.float32)
+
+
+def reference(actor: Actor, obs: np.ndarray, action_table: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """PyTorch float32 outputs for ``obs`` ``(n, obs_size)``.
+
+    Returns ``{"action": (n, act_size)}`` and, for argmax actors, ``"index"`` ``(n,)``
+    and ``"q"`` ``(n, A)``.
+    """
+    with torch.no_grad():
+        x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).to(actor.obs_loc)
+        y = actor(x).to(torch.float32).numpy()
+    if actor.output == "tanh":
+        return {"action": y}
+    idx = y.argmax(-1)
+    return {"action": action_table[idx], "index": idx, "q": y}
+
+
+def compare(ref: dict[str, np.ndarray], got: dict[str, np.ndarray], tolerance: float) -> dict[str, Any]:
+    """Max absolute errors between two output sets and whether they are within ``tolerance``.
+
+    For argmax policies the Q-values must agree within ``tolerance * max(1, max |Q|)``
+    (relative for large returns); a different index is accepted only where the
+    reference's best two Q-values are that close (a tie float rounding may break either way).
+    """
+    out: dict[str, Any] = {}
+    if "q" in ref:
+        # Q-values are returns, not bounded like actions; float32 sums err in proportion to their size.
+        q_tol = tolerance * max(1.0, float(np.abs(ref["q"]).max()))
+        out["q_max_abs_err"], out["q_tolerance"] = float(np.abs(ref["q"] - got["q"]).max()), q_tol
+        diff = ref["index"] != got["index"]
+        top2 = np.sort(ref["q"], axis=-1)[:, -2:] if ref["q"].shape[-1] > 1 else np.zeros((len(diff), 2))
+        out["index_mismatches"] = int(diff.sum())
+        out["index_untied_mismatches"] = int((diff & (top2[:, 1] - top2[:, 0] > q_tol)).sum())
+        out["action_max_abs_err"] = float(np.abs(ref["action"] - got["action"]).max())
+        ok = out["q_max_abs_err"] <= q_tol and out["index_untied_mismatches"] == 0
+    else:
+        out["action_max_abs_err"] = float(np.abs(ref["action"] - got["action"]).max())
+        ok = out["action_max_abs_err"] <= tolerance
+    out["ok"] = bool(ok)
+    return out
+
+
+def describe(errors: dict[str, Any]) -> str:
+    """One line, e.g. ``max |error| 2.4e-07`` or ``max |Q error| 1.2e-06, 0 index mismatches``."""
+    if "q_max_abs_err" in errors:
+        return f"max |Q error| {errors['q_max_abs_err']:.2g}, {errors['index_mismatches']} index mismatches"
+    return f"max |action error| {errors['action_max_abs_err']:.2g}"
+
+
+class VerificationError(RuntimeError):
+    """An export does not reproduce PyTorch within the tolerance."""
