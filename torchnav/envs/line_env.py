@@ -1,0 +1,161 @@
+"""TorchRL environment for the line-following task: a thin wrapper around ``LineTask``.
+
+Follows ``NavEnv``'s conventions: ``batch_size=(num_envs,)``, specs made in one place,
+partial resets through the ``"_reset"`` mask, an explicit ``torch.Generator`` seeded
+by ``set_seed``, running per-episode statistics under ``"episode"`` (read them where
+``done`` is set) and one metric per reward term under ``"reward_terms"``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
+from torchrl.envs import EnvBase
+
+from ..config import merge, to_dict
+from ..tasks.line import LineState, LineTask
+from ..tasks.line_config import LineConfig
+
+EPISODE_KEYS = ("return", "length", "progress_m", "lap_fraction", "laps", "lap_time", "time_off_line")
+FLAG_KEYS = ("on_line", "left_line", "stalled", "collision", "lap_completed")
+
+
+class LineEnv(EnvBase):
+    """Batched line following (see docs/line.md for observation, action and reward).
+
+    Outputs of every reset and step: ``observation`` ``(B, H*K [+1])``, ``sensors`` ``(B, K)``
+    (current readings), ``pose`` ``(B, 3)``, ``ranges`` ``(B, 1)`` (forward distance, m),
+    ``lap_s`` ``(B, 1)`` (m along the lap), the flags ``on_line``, ``left_line``, ``stalled``,
+    ``collision``, ``lap_completed`` ``(B, 1)``, ``reward_terms/*`` and ``episode/*``
+    (:data:`EPISODE_KEYS`), plus ``reward``, ``done``, ``terminated``, ``truncated``.
+    """
+
+    _has_dynamic_specs = False
+
+    def __init__(self, cfg: LineConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
+        cfg = cfg or LineConfig()
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.cfg = cfg
+        self.task = LineTask(cfg, num_envs, device=self.device)
+        self._generator = torch.Generator(device=self.device)
+        self._generator.manual_seed(0 if seed is None else seed)
+        self._state: LineState | None = None
+        self._make_specs()
+
+    @property
+    def track(self):
+        """The :class:`~torchnav.tracks.Track` every env drives on."""
+        return self.task.track
+
+    def _make_specs(self) -> None:
+        b, dev, t = self.batch_size, self.device, self.task
+        flag = lambda: Categorical(2, shape=(*b, 1), dtype=torch.bool, device=dev)  # noqa: E731
+        scalar = lambda: Unbounded(shape=(*b, 1), device=dev)  # noqa: E731
+        k = t.n_sensors
+        ds = self.cfg.distance_sensor
+        obs_hi = 1.0
+        self.observation_spec = Composite(
+            observation=Bounded(0.0, obs_hi, shape=(*b, t.obs_size), device=dev),
+            sensors=Bounded(0.0, 1.0, shape=(*b, k), device=dev),
+            pose=Unbounded(shape=(*b, 3), device=dev),
+            ranges=Bounded(0.0, ds.max_range, shape=(*b, 1), device=dev),
+            lap_s=Bounded(0.0, t.tt.length, shape=(*b, 1), device=dev),
+            **{f: flag() for f in FLAG_KEYS},
+            reward_terms=Composite({n: scalar() for n in t.term_names}, shape=b, device=dev),
+            episode=Composite({**{n: scalar() for n in EPISODE_KEYS}, **{f"term_{n}": scalar() for n in t.term_names}},
+                              shape=b, device=dev),
+            shape=b, device=dev,
+        )
+        if self.cfg.action.mode == "discrete":
+            n = len(self.cfg.action.discrete_set)
+            self.action_spec = OneHot(n, shape=(*b, n), device=dev)
+        else:
+            self.action_spec = Bounded(-1.0, 1.0, shape=(*b, 2), device=dev)
+        self.reward_spec = Unbounded(shape=(*b, 1), device=dev)
+        self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=b, device=dev)
+
+    # -- TorchRL hooks --------------------------------------------------------------------
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._generator.manual_seed(0 if seed is None else int(seed))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if self._state is None or mask is None:
+            self._state = self.task.initial_state(self._generator)
+        else:
+            # Out of place: the previous step's outputs share storage with the old state.
+            self._state = self.task.reset(self._state, mask.reshape(-1), self._generator)
+        s = self._state
+        false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
+        terms = {k: torch.zeros_like(s.progress) for k in self.task.term_names}
+        flags = {f: false() for f in FLAG_KEYS}
+        flags["on_line"] = (s.readings > self.cfg.sensors.threshold).any(-1, keepdim=True)
+        out = self._outputs(s, self.task.observe(s.history, s.sim), terms, flags)
+        out.update({"done": false(), "terminated": false(), "truncated": false()})
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action")
+        if self.cfg.check_actions and not torch.isfinite(action).all():
+            bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
+            raise ValueError(
+                f"LineEnv.step: action contains NaN or inf in envs {bad[:10]}{'...' if len(bad) > 10 else ''}; "
+                "fix the policy, or pass check_actions=False to let the simulator treat them as a stop command"
+            )
+        self._state, out = self.task.step(self._state, action, self._generator)
+        terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
+        td = self._outputs(self._state, out["observation"], out["terms"], {f: out[f][:, None] for f in FLAG_KEYS})
+        td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
+        return td
+
+    def _outputs(self, s: LineState, obs, terms, flags) -> TensorDict:
+        b = self.batch_size
+        col = lambda x: x.reshape(*b, 1)  # noqa: E731
+        f = s.progress.dtype
+        length = self.task.tt.length
+        episode = {
+            "return": col(s.ep_return), "length": col(s.steps.to(f)), "progress_m": col(s.progress),
+            "lap_fraction": col(s.progress / length), "laps": col(s.laps.to(f)), "lap_time": col(s.lap_time),
+            "time_off_line": col(s.time_off_line),
+            **{f"term_{k}": col(s.ep_terms[:, i]) for i, k in enumerate(self.task.term_names)},
+        }
+        return TensorDict(
+            {
+                "observation": obs, "sensors": s.readings, "pose": s.sim.pose, "ranges": s.sim.ranges,
+                "lap_s": col(s.s), **flags, "reward_terms": {k: col(v) for k, v in terms.items()}, "episode": episode,
+            },
+            batch_size=b, device=self.device,
+        )
+
+    # -- state for checkpoints and recording ----------------------------------------------
+
+    @property
+    def num_envs(self) -> int:
+        return self.batch_size[0]
+
+    @property
+    def state(self) -> LineState | None:
+        """The current task state (read-only use)."""
+        return self._state
+
+    def state_dict(self) -> dict[str, Any]:
+        """RNG state, for checkpoints (episodes in flight are not saved)."""
+        return {"generator": self._generator.get_state()}
+
+    def load_state_dict(self, sd: dict[str, Any]) -> None:
+        if "generator" in sd:
+            self._generator.set_state(sd["generator"])
+
+
+def make_line_env(track: str = "course", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> LineEnv:
+    """Build a ``LineEnv`` from keyword overrides of ``LineConfig`` (nested dicts for sections).
+
+    Example: ``make_line_env("oval", 256, action={"mode": "discrete"}, sensors={"noise_std": 0.05})``.
+    Unknown keys raise a ConfigError naming the key.
+    """
+    cfg = LineConfig.from_dict(merge(to_dict(LineConfig()), {"track": track, **overrides}))
+    return LineEnv(cfg, num_envs=num_envs, device=device, seed=seed)
