@@ -17,23 +17,36 @@ ROOT = Path(__file__).resolve().parent.parent
 RECIPES = ROOT / "recipes"
 sys.path.insert(0, str(RECIPES))
 
-TINY = [
-    "threads=1", "env.num_envs=16", "env.max_steps=60", "train.frames_per_batch=128", "train.init_random_frames=128",
-    "train.updates_per_batch=4", "train.batch_size=32", "train.hidden=[32,32]", "train.buffer_size=10000",
-    "eval.interval_frames=256", "eval.episodes=8", "eval.final_episodes=16", "eval.record_episodes=2",
-    "checkpoint.interval_frames=256", "logger.progress=false",
+COMMON = [
+    "threads=1", "env.num_envs=16", "env.max_steps=60", "eval.interval_frames=256", "eval.episodes=8",
+    "eval.final_episodes=16", "eval.record_episodes=2", "checkpoint.interval_frames=256", "logger.progress=false",
 ]
+OFF_POLICY = ["train.frames_per_batch=128", "train.init_random_frames=128", "train.updates_per_batch=4", "train.batch_size=32",
+              "train.hidden=[32,32]", "train.buffer_size=10000"]
+TINY = COMMON + OFF_POLICY  # TD3
+TINY_ARGS = {
+    "td3_lidar": TINY,
+    "sac_lidar": COMMON + OFF_POLICY,
+    "ppo_lidar": COMMON + ["train.frames_per_batch=128", "train.minibatch_size=64", "train.epochs=2", "train.hidden=[32,32]",
+                           "train.obs_stats_steps=4"],
+}
+
+
+def _run(recipe, args):
+    import importlib
+
+    return importlib.import_module(recipe).main(args)
 
 
 def _td3(args):
-    import td3_lidar
-
-    return td3_lidar.main(args)
+    return _run("td3_lidar", args)
 
 
-def test_td3_smoke_and_resume(tmp_path):
+@pytest.mark.parametrize("recipe", sorted(TINY_ARGS))
+def test_recipe_smoke_and_resume(tmp_path, recipe):
     run = tmp_path / "run"
-    res = _td3(TINY + ["train.total_frames=512", f"logger.run_dir={run}"])
+    tiny = TINY_ARGS[recipe]
+    res = _run(recipe, tiny + ["train.total_frames=512", f"logger.run_dir={run}"])
     assert res["frames"] == 512
     for f in ("config.yaml", "checkpoint.pt", "actor.pt", "summary.json", "episodes.mcap"):
         assert (run / f).is_file(), f
@@ -44,15 +57,34 @@ def test_td3_smoke_and_resume(tmp_path):
     ck = torch.load(run / "checkpoint.pt", weights_only=True)
     placements = int(ck["env"]["curriculum"]["placements"])
     assert ck["counters"]["frames"] == 512 and placements > 16
+    assert ck["policy"]["algorithm"] == recipe.split("_")[0]
     assert list((run / "logs").rglob("*")), "the CSV logger wrote nothing"
 
+    # actor.pt is the deterministic policy the final evaluation ran: evaluating it again gives the same numbers
+    from torchnav.evaluation import eval_config, run_episodes, summarize
+    from torchnav.policy import load_policy
+
+    sp = load_policy(run / "actor.pt")
+    again = summarize(run_episodes(sp.policy, eval_config(sp.config()), 16, seed=20_000))
+    assert again["success"]["count"] == summary["eval"]["success"]["count"]
+    assert again["collision"]["count"] == summary["eval"]["collision"]["count"]
+
     # resume: counters and curriculum continue from the checkpoint
-    res2 = _td3(TINY + ["train.total_frames=1024", f"checkpoint.resume={run}"])
+    res2 = _run(recipe, tiny + ["train.total_frames=1024", f"checkpoint.resume={run}"])
     assert res2["frames"] == 1024
     ck2 = torch.load(run / "checkpoint.pt", weights_only=True)
     assert ck2["counters"]["updates"] > ck["counters"]["updates"]
     assert int(ck2["env"]["curriculum"]["placements"]) > placements
     assert float(ck2["env"]["curriculum"]["radius"]) > float(ck["env"]["curriculum"]["radius"])
+
+
+def test_resume_refuses_another_recipes_checkpoint(tmp_path):
+    from torchnav.config import ConfigError
+
+    run = tmp_path / "run"
+    _td3(TINY + ["train.total_frames=128", "eval.record_episodes=0", f"logger.run_dir={run}"])
+    with pytest.raises(ConfigError, match="not a ppo_lidar checkpoint"):
+        _run("ppo_lidar", TINY_ARGS["ppo_lidar"] + [f"checkpoint.resume={run}"])
 
 
 def test_td3_unknown_key_and_missing_checkpoint(tmp_path):

@@ -26,7 +26,7 @@ from torch import nn
 
 FORMAT = "torchnav-actor-v2"
 ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
-OUTPUTS = ("tanh", "argmax")
+OUTPUTS = ("tanh", "argmax", "linear")  # "linear": raw outputs (value networks, pre-tanh means); not a saved policy
 
 
 class Actor(nn.Module):
@@ -68,6 +68,17 @@ class Actor(nn.Module):
         y = self.net((obs - self.obs_loc) / self.obs_scale)
         return torch.tanh(y) if self.output == "tanh" else y
 
+    def squashed(self, n: int | None = None) -> "Actor":
+        """A ``tanh`` copy of this network keeping the first ``n`` outputs: the deterministic
+        action ``tanh(loc)`` of a Gaussian policy whose (linear) head emits ``loc`` first."""
+        n = self.out_size if n is None else n
+        out = Actor(self.obs_size, n, self.hidden, self.activation, output="tanh").to(self.obs_loc.device)
+        state = {k: v.detach().clone() for k, v in self.state_dict().items()}
+        last = f"net.{len(self.net) - 1}"
+        state[f"{last}.weight"], state[f"{last}.bias"] = state[f"{last}.weight"][:n], state[f"{last}.bias"][:n]
+        out.load_state_dict(state)
+        return out
+
     def linear_layers(self) -> list[nn.Linear]:
         return [m for m in self.net if isinstance(m, nn.Linear)]
 
@@ -87,6 +98,8 @@ def to_policy(actor: Actor, in_key: str = "observation") -> TensorDictModule:
     """A TensorDict policy writing ``"action"``: the tanh output, or a one-hot argmax for Q-networks."""
     if actor.output == "tanh":
         return TensorDictModule(actor, in_keys=[in_key], out_keys=["action"])
+    if actor.output == "linear":
+        raise ValueError("a 'linear' network is not a policy: use Actor.squashed() for a Gaussian policy's mean action")
     return TensorDictModule(nn.Sequential(actor, _ArgmaxOneHot()), in_keys=[in_key], out_keys=["action"])
 
 
@@ -119,6 +132,8 @@ class SavedPolicy:
 def policy_payload(actor: Actor, *, task: str, task_config: dict[str, Any], algorithm: str,
                    action_table: torch.Tensor | None = None, **extra: Any) -> dict[str, Any]:
     """The ``actor.pt`` dictionary (also embedded in training checkpoints under ``"policy"``)."""
+    if actor.output == "linear":
+        raise ValueError("a 'linear' network is not a policy: save Actor.squashed() for a Gaussian policy's mean action")
     return {"format": FORMAT, **actor.spec(), "state": {k: v.detach().cpu() for k, v in actor.state_dict().items()},
             "action_table": None if action_table is None else action_table.detach().cpu(),
             "task": task, "task_config": task_config, "algorithm": algorithm, **extra}

@@ -1,0 +1,256 @@
+"""The training loop every recipe shares: setup, progress, episode statistics, periodic
+evaluation, checkpoints, Ctrl-C/SIGTERM, final evaluation and MCAP episodes.
+
+A recipe builds its networks and loss, then hands ``Trainer.train`` three things:
+a collector, an ``update(batch) -> {name: loss}`` function, and an ``algo_state()``
+function returning what its checkpoint needs beyond the env, RNG and counters.
+What differs between tasks (env, evaluation, recording) lives in a task adapter
+(``NavTask`` here; the line-following recipes pass their own).
+"""
+
+from __future__ import annotations
+
+import collections
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import torch
+from tensordict import TensorDictBase
+from tqdm import tqdm
+
+import _common as C
+
+from torchnav.envs import NavEnv
+from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize
+from torchnav.policy import Actor, policy_payload, save_policy, to_policy
+
+
+class NavAdapter:
+    """The lidar navigation task: env, goals-anywhere evaluation, recording, progress fields."""
+
+    name = "nav"
+    outcome_keys = ("success", "collision")  # flags read from the next state of finished training episodes
+
+    def __init__(self, cfg) -> None:
+        self.config = C.nav_config(cfg)
+        self.eval_config = eval_config(self.config)
+
+    def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
+        return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed)
+
+    def evaluate(self, policy, episodes: int, seed: int, device) -> dict[str, Any]:
+        s = summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device))
+        s["score"] = s["success"]["rate"]  # the rate compared with eval.target_success
+        return s
+
+    def describe(self, s: dict[str, Any]) -> str:
+        return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("success", "collision", "timeout"))
+
+    def format(self, s: dict[str, Any]) -> str:
+        return format_summary(s, title=f"final evaluation on {self.config.map}, goals anywhere, deterministic policy")
+
+    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
+        return record_episodes(policy, self.eval_config, path, episodes, seed=seed, device=device, metadata=metadata)
+
+    def status(self, env) -> str:
+        return f"radius {env.curriculum.radius.item():.2f}m"
+
+    def task_config(self) -> dict[str, Any]:
+        return C.to_dict(self.config)
+
+    def info(self) -> dict[str, Any]:
+        return {"map": self.config.map}
+
+
+class Trainer:
+    """Setup and loop of one recipe run; see the module docstring."""
+
+    def __init__(self, name: str, argv: list[str], ckpt_format: str, adapter: type = NavAdapter) -> None:
+        self.name, self.ckpt_format = name, ckpt_format
+        self.cfg = cfg = C.load_config(name, argv)
+        resume_dir = C.find_resume_dir(cfg)
+        self.ckpt: dict[str, Any] | None = None
+        if resume_dir is not None:
+            self.ckpt = C.load_checkpoint(resume_dir / "checkpoint.pt")
+            if self.ckpt.get("format") != ckpt_format:
+                raise C.ConfigError(f"{resume_dir / 'checkpoint.pt'} is not a {name} checkpoint (format {self.ckpt.get('format')!r})")
+            cfg.logger.run_dir = str(resume_dir)
+        if cfg.threads:
+            torch.set_num_threads(int(cfg.threads))
+        C.seed_everything(cfg.seed)
+        self.device = torch.device(cfg.device)
+        self.task = adapter(cfg)
+        self.run = C.make_run_dir(cfg, name)
+        C.save_config(cfg, self.run)
+        self.logger = C.make_logger(cfg, self.run)
+        self.env = self.task.make_env(int(cfg.env.num_envs), self.device, int(cfg.seed))
+        self.counters: dict[str, Any] = {"frames": 0, "updates": 0, "batches": 0, "wall_time": 0.0,
+                                         "time_to_target": None, "frames_to_target": None}
+        # the deterministic actor to evaluate and save; each recipe sets this after building its networks
+        self.export_actor: Callable[[], Actor] = self._no_actor
+
+    @property
+    def fresh(self) -> bool:
+        return self.ckpt is None
+
+    def restore(self, modules: dict[str, Any]) -> None:
+        """Load ``{key: module_or_optimizer}`` plus env, RNG and counters from the resumed checkpoint."""
+        if self.ckpt is None:
+            return
+        for k, m in modules.items():
+            m.load_state_dict(self.ckpt[k])
+        self.env.load_state_dict(self.ckpt["env"])
+        C.set_rng_states(self.ckpt["rng"])
+        self.counters.update(self.ckpt["counters"])
+        print(f"resuming {self.run} at {self.counters['frames']:,} frames, {self.task.status(self.env)}")
+
+    def remaining_frames(self) -> int:
+        return int(self.cfg.train.total_frames) - int(self.counters["frames"])
+
+    def policy_meta(self, **extra: Any) -> dict[str, Any]:
+        return {"task": self.task.name, "task_config": self.task.task_config(), "algorithm": self.name.split("_")[0], **extra}
+
+    def save(self, algo_state: Callable[[], dict[str, Any]], meta: dict[str, Any]) -> None:
+        """``checkpoint.pt`` (everything to resume) and ``actor.pt`` (the deterministic policy), both atomic."""
+        actor = self.export_actor()
+        C.save_checkpoint(self.run / "checkpoint.pt", {
+            "format": self.ckpt_format, **algo_state(), "env": self.env.state_dict(), "rng": C.rng_states(),
+            "counters": dict(self.counters), "config": C.config_dict(self.cfg), "policy": policy_payload(actor, **meta),
+        })
+        save_policy(self.run / "actor.pt", actor, **meta)
+
+    def _no_actor(self) -> Actor:
+        raise RuntimeError(f"{self.name}: the recipe did not set Trainer.export_actor")
+
+    def evaluate(self, episodes: int, seed: int) -> dict[str, Any]:
+        actor = self.export_actor()
+        was_training = actor.training
+        actor.eval()
+        try:
+            return self.task.evaluate(to_policy(actor), episodes, seed, self.device)
+        finally:
+            actor.train(was_training)
+
+    def train(self, collector: Iterable[TensorDictBase] | None, update: Callable[[TensorDictBase], dict[str, float]],
+              algo_state: Callable[[], dict[str, Any]], meta: dict[str, Any] | None = None,
+              on_frames: Callable[[int], None] | None = None) -> bool:
+        """Run the loop; returns True if it was stopped by a signal (a checkpoint was written either way)."""
+        cfg, c, log = self.cfg, self.counters, self.logger
+        meta = meta or self.policy_meta()
+        recent = collections.deque(maxlen=500)  # outcome flags of recent training episodes
+        stop = C.StopFlag()
+        bar = tqdm(total=int(cfg.train.total_frames), initial=int(c["frames"]), unit="fr", disable=not cfg.logger.progress, dynamic_ncols=True)
+        last_ckpt = last_eval = c["frames"]
+        t_start = time.perf_counter() - c["wall_time"]
+        losses: dict[str, float] = {}
+        try:
+            for batch in collector or ():
+                n = batch.numel()
+                c["frames"] += n
+                c["batches"] += 1
+                if on_frames is not None:
+                    on_frames(n)
+                self._episode_stats(batch.reshape(-1), recent)
+                losses = update(batch) or losses
+                c["wall_time"] = time.perf_counter() - t_start
+                rates = {k: sum(r[i] for r in recent) / max(len(recent), 1) for i, k in enumerate(self.task.outcome_keys)}
+                fps = c["frames"] / max(c["wall_time"], 1e-9)
+                bar.update(n)
+                bar.set_postfix_str(" ".join(f"{k} {100 * v:.0f}%" for k, v in rates.items()) + f" {self.task.status(self.env)} {fps:,.0f} fr/s")
+                if c["batches"] % 10 == 0:
+                    for k, v in {**{f"train/{k}_rate": v for k, v in rates.items()}, "perf/frames_per_s": fps,
+                                 "time/wall_s": c["wall_time"], **{f"loss/{k}": v for k, v in losses.items()}}.items():
+                        log.log_scalar(k, v, step=c["frames"])
+                if cfg.eval.interval_frames and c["frames"] - last_eval >= cfg.eval.interval_frames:
+                    last_eval = c["frames"]
+                    s = self.evaluate(int(cfg.eval.episodes), 10_000 + int(cfg.seed))
+                    c["wall_time"] = time.perf_counter() - t_start
+                    log.log_scalar("eval/score", s["score"], step=c["frames"])
+                    log.log_scalar("eval/wall_s", c["wall_time"], step=c["frames"])
+                    bar.write(f"[eval @ {c['frames']:,} frames, {c['wall_time']:.0f} s] {self.task.describe(s)}")
+                    if c["time_to_target"] is None and s["score"] >= cfg.eval.target_success:
+                        c["time_to_target"], c["frames_to_target"] = c["wall_time"], c["frames"]
+                if c["frames"] - last_ckpt >= cfg.checkpoint.interval_frames:
+                    last_ckpt = c["frames"]
+                    self.save(algo_state, meta)
+                if stop.stop:
+                    break
+        except KeyboardInterrupt:
+            print("\ninterrupted: writing a checkpoint", file=sys.stderr)
+            stop.stop = True
+        finally:
+            bar.close()
+            stop.restore()
+            if collector is not None and hasattr(collector, "shutdown"):
+                collector.shutdown()
+            self.save(algo_state, meta)
+        if stop.stop:
+            print(f"stopped at {c['frames']:,} frames; checkpoint in {self.run / 'checkpoint.pt'}; continue with --resume={self.run}")
+        return stop.stop
+
+    def _episode_stats(self, flat: TensorDictBase, recent: collections.deque) -> None:
+        done = flat["next", "done"].reshape(-1)
+        if not done.any():
+            return
+        nxt = flat["next"][done]
+        flags = [nxt[k].reshape(-1).tolist() for k in self.task.outcome_keys]
+        recent.extend(zip(*flags))
+        ep = nxt["episode"]
+        step = self.counters["frames"]
+        for k in ep.keys():
+            self.logger.log_scalar(f"episode/{k}", ep[k].float().mean().item(), step=step)
+
+    def finish(self) -> dict[str, Any]:
+        """Final evaluation on ``eval.final_episodes`` episodes, MCAP episodes, ``summary.json``; prints the table."""
+        cfg, c = self.cfg, self.counters
+        t0 = time.perf_counter()
+        summary = self.evaluate(int(cfg.eval.final_episodes), 20_000 + int(cfg.seed))
+        result = {
+            "run_dir": str(self.run), **self.task.info(), "frames": c["frames"], "updates": c["updates"],
+            "train_wall_s": c["wall_time"], "time_to_target_s": c["time_to_target"],
+            "frames_to_target": c["frames_to_target"], "eval": summary, "eval_wall_s": time.perf_counter() - t0,
+        }
+        self.logger.log_scalar("final/score", summary["score"], step=c["frames"])
+        if cfg.eval.record_episodes:
+            rec = self.task.record(to_policy(self.export_actor()), self.run / "episodes.mcap", int(cfg.eval.record_episodes),
+                                   20_000 + int(cfg.seed), self.device,
+                                   {"checkpoint": str(self.run / "actor.pt"), "config": C.config_dict(cfg)})
+            result["episodes_mcap"] = None if rec.error else str(self.run / "episodes.mcap")
+        C.write_json(self.run / "summary.json", result)
+        print()
+        print(self.task.format(summary))
+        print(f"  trained {c['frames']:,} frames, {c['updates']:,} updates in {c['wall_time']:.0f} s"
+              + (f"; reached {100 * cfg.eval.target_success:.0f}% at {c['time_to_target']:.0f} s" if c["time_to_target"] else ""))
+        print(f"  run directory: {self.run}  (actor.pt, checkpoint.pt, summary.json, logs/)")
+        return result
+
+
+REPLAY_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))
+
+
+def replay_update(trainer: Trainer, buffer, step_fn) -> Callable[[TensorDictBase], dict[str, float]]:
+    """An ``update(batch)`` that stores the batch, then runs ``train.updates_per_batch`` calls of
+    ``step_fn(sample) -> {name: loss}`` once the buffer holds ``train.init_random_frames`` (TD3 and SAC)."""
+    tc = trainer.cfg.train
+
+    def update(batch):
+        buffer.extend(batch.reshape(-1).select(*REPLAY_KEYS))
+        out = {}
+        if len(buffer) >= int(tc.init_random_frames):
+            for _ in range(int(tc.updates_per_batch)):
+                out = step_fn(buffer.sample())
+                trainer.counters["updates"] += 1
+        return out
+
+    return update
+
+
+def main_guard(main: Callable[[list[str]], Any]) -> None:
+    """Run ``main(sys.argv[1:])``, turning configuration and missing-file errors into one line and exit code 2."""
+    try:
+        main(sys.argv[1:])
+    except (C.ConfigError, FileNotFoundError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,90 @@
+"""SAC on batched lidar navigation, with TorchRL.
+
+    python recipes/sac_lidar.py                        # arena, 64 envs, CPU
+    python recipes/sac_lidar.py env.map=warehouse train.total_frames=500000
+    python recipes/sac_lidar.py --resume               # continue the newest run
+
+Reads top to bottom: config and env (``_train.Trainer``) -> a tanh-squashed
+Gaussian actor with state-dependent scale, twin Q-networks -> ``SACLoss`` with a
+learned temperature -> collector -> update (store the batch; `updates_per_batch`
+gradient steps on sampled minibatches, soft target updates). Replay, progress,
+evaluation and checkpoints are shared with TD3 (``recipes/_train.py``). Every
+config key is documented in recipes/configs/sac_lidar.yaml.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import torch
+from tensordict.nn import NormalParamExtractor, TensorDictModule
+from torch import nn
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.modules import ProbabilisticActor, TanhNormal
+from torchrl.objectives import SACLoss, SoftUpdate
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common as C  # noqa: E402
+from _train import Trainer, main_guard, replay_update  # noqa: E402
+from td3_lidar import make_critic  # noqa: E402
+
+from torchnav.policy import Actor  # noqa: E402
+
+
+def main(argv: list[str]) -> dict:
+    t = Trainer("sac_lidar", argv, ckpt_format="torchnav-sac-v1")
+    cfg, tc, env, device = t.cfg, t.cfg.train, t.env, t.device
+    if t.task.config.action.mode != "continuous":
+        raise C.ConfigError("SAC needs task.action.mode=continuous")
+
+    # -- networks and loss: the actor's linear head emits (loc, raw scale) --------------------
+    obs_size, act_size = env.task.obs_size, 2
+    net = Actor(obs_size, 2 * act_size, tc.hidden, output="linear").to(device)
+    params = TensorDictModule(nn.Sequential(net, NormalParamExtractor(scale_mapping="biased_softplus_1.0", scale_lb=1e-4)),
+                              in_keys=["observation"], out_keys=["loc", "scale"])
+    actor = ProbabilisticActor(params, in_keys=["loc", "scale"], spec=env.action_spec_unbatched, distribution_class=TanhNormal,
+                               return_log_prob=False)
+    critic = make_critic(obs_size, act_size, tc.hidden).to(device)
+    loss = SACLoss(actor_network=actor, qvalue_network=critic, num_qvalue_nets=2, loss_function="l2",
+                   alpha_init=float(tc.alpha_init), action_spec=env.action_spec_unbatched, delay_qvalue=True)
+    loss.make_value_estimator(gamma=tc.gamma)
+    target_update = SoftUpdate(loss, tau=tc.tau)
+    opt_actor = torch.optim.Adam(loss.actor_network_params.flatten_keys().values(), lr=tc.lr_actor)
+    opt_critic = torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=tc.lr_critic)
+    opt_alpha = torch.optim.Adam([loss.log_alpha], lr=tc.lr_alpha)
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
+    modules = {"loss": loss, "opt_actor": opt_actor, "opt_critic": opt_critic, "opt_alpha": opt_alpha}
+    t.restore(modules)
+    t.export_actor = lambda: net.squashed(act_size)  # deterministic action tanh(loc)
+
+    # -- one gradient step on actor, twin critics and temperature; then soft target update -----
+    opts = (opt_actor, opt_critic, opt_alpha)
+
+    def step(sample):
+        lv = loss(sample)
+        total = lv["loss_actor"] + lv["loss_qvalue"] + lv["loss_alpha"]
+        for o in opts:
+            o.zero_grad(set_to_none=True)
+        total.backward()
+        for o in opts:
+            o.step()
+        target_update.step()
+        if t.counters["batches"] % 10:
+            return {}
+        return {k: lv[k].item() for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}
+
+    remaining = t.remaining_frames()
+    collector = Collector(
+        env, actor, frames_per_batch=int(tc.frames_per_batch), total_frames=max(remaining, int(tc.frames_per_batch)),
+        init_random_frames=int(tc.init_random_frames) if t.fresh else 0, device=device, auto_register_policy_transforms=False,
+    ) if remaining > 0 else None
+    stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()})
+    if stopped:
+        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
+    return t.finish()
+
+
+if __name__ == "__main__":
+    main_guard(main)
