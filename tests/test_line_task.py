@@ -247,3 +247,19 @@ def test_forward_distance_sensor_reads_a_wall(tmp_path):
     assert s.sim.ranges[0, 0].item() == pytest.approx(0.5 - 0.1 - 0.07, abs=1e-5)  # mounted 7 cm ahead
     obs = env.task.observe(s.history, s.sim)
     assert obs.shape == (1, 31) and obs[0, -1].item() == pytest.approx(0.33 / 2.0, abs=1e-5)
+
+
+def test_lap_evaluation_of_the_pd_follower():
+    from torchnav.line_evaluation import format_lap_summary, run_line_episodes, summarize_laps
+
+    cfg = LineConfig.from_dict({"track": "oval", "max_steps": 400})
+    res = run_line_episodes(LineFollower(), cfg, n_episodes=6, seed=1, max_batch=4)
+    assert res["lap_complete"].all() and res["lap_complete"].shape == (6,)
+    assert (torch.stack([res[k] for k in ("left_line", "stalled", "collision", "timeout")]).sum(0) == 0).all()
+    s = summarize_laps(res, cfg.robot.dt)
+    assert s["lap_complete"]["rate"] == 1.0 and 0.5 < s["lap_complete"]["ci95"][0] < 1.0
+    assert 5.0 < s["lap_time"]["mean"] < 20.0
+    assert "lap_complete" in format_lap_summary(s, "oval")
+    # a policy that drives off the line never completes a lap
+    bad = run_line_episodes(constant([1.0, 0.0]), cfg, n_episodes=3, seed=1)
+    assert bad["left_line"].all() and torch.isnan(bad["lap_time"]).all()

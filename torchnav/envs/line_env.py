@@ -34,6 +34,8 @@ class LineEnv(EnvBase):
     """
 
     _has_dynamic_specs = False
+    # For torchnav.record: the flags that say why an episode terminated, in order of precedence.
+    end_reasons = ("collision", "left_line", "stalled")
 
     def __init__(self, cfg: LineConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
         cfg = cfg or LineConfig()
@@ -132,6 +134,11 @@ class LineEnv(EnvBase):
         )
 
     # -- state for checkpoints and recording ----------------------------------------------
+
+    def scene_lines(self) -> dict[str, dict]:
+        """Static lines for recorded scenes (``torchnav.record``): the track's tape, as segments
+        ``(S, 4)`` (m) drawn ``width`` thick in white."""
+        return {"track": {"segments": self.track.segments, "thickness": self.track.width, "color": (1.0, 1.0, 1.0, 1.0)}}
 
     @property
     def num_envs(self) -> int:

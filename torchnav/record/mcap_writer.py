@@ -156,6 +156,13 @@ class EpisodeRecorder:
         self.dt_ns = int(round(env.cfg.robot.dt * 1e9))
         self.term_names = tuple(env.task.term_names)
         self.lidar = env.task.params.lidar
+        # Extension points for envs other than NavEnv (see docs/foxglove.md): which outputs exist,
+        # the flags that name why an episode terminated, and static lines drawn in every scene.
+        keys = set(env.observation_spec.keys())
+        self.optional = {k: k in keys for k in ("goal", "curriculum_radius", "success")}
+        self.end_reasons = tuple(getattr(env, "end_reasons", ()))
+        scene_lines = getattr(env, "scene_lines", None)
+        self.scene_lines = scene_lines() if callable(scene_lines) else {}
         self.streams = [scene.EnvStream(i, env, self) for i in self.envs]
         self._writer = None
         self._file = None
@@ -194,12 +201,12 @@ class EpisodeRecorder:
 
         cfg, li = self.env.cfg, self.lidar
         meta = {
-            "version": _version(), "map": str(cfg.map), "seed": "", "checkpoint": "",
+            "version": _version(), "map": str(getattr(cfg, "map", getattr(cfg, "track", ""))), "seed": "", "checkpoint": "",
             "config": json.dumps(to_dict(cfg), default=str),
             "envs": json.dumps(self.envs), "num_envs": str(self.env.num_envs), "dt": repr(cfg.robot.dt),
             "lidar": json.dumps({"n_rays": li.n_rays, "fov": li.fov, "min_range": li.min_range, "max_range": li.max_range,
                                  "offset": list(li.offset), "angles": li.angles()}),
-            "robot_radius": repr(cfg.robot.radius), "goal_tolerance": repr(cfg.goal_tolerance),
+            "robot_radius": repr(cfg.robot.radius), "goal_tolerance": repr(getattr(cfg, "goal_tolerance", 0.0)),
             "reward_terms": json.dumps(list(self.term_names)), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
         for k, v in extra.items():
@@ -318,20 +325,29 @@ class EpisodeRecorder:
         idx, nxt = self._idx, td.get("next")
         terms = nxt.get("reward_terms")
         ep = nxt.get("episode")
+        pose0 = td.get("pose")
+        zero = lambda: pose0.new_zeros(pose0.shape[0])  # noqa: E731
+        flag = lambda key: nxt.get(key)[..., 0] if self.optional.get(key, True) else zero().bool()  # noqa: E731
+        stat = lambda key: ep.get(key)[..., 0] if key in ep.keys() else zero()  # noqa: E731
         out = {
-            "pose0": td.get("pose"), "ranges0": td.get("ranges"), "goal": td.get("goal"), "action": td.get("action"),
+            "pose0": pose0, "ranges0": td.get("ranges"), "action": td.get("action"),
+            "goal": td.get("goal") if self.optional["goal"] else pose0.new_zeros(pose0.shape[0], 2),
             "pose1": nxt.get("pose"), "ranges1": nxt.get("ranges"),
-            "reward": nxt.get("reward")[..., 0], "radius": nxt.get("curriculum_radius")[..., 0],
-            "success": nxt.get("success")[..., 0], "collision": nxt.get("collision")[..., 0],
+            "reward": nxt.get("reward")[..., 0],
+            "radius": nxt.get("curriculum_radius")[..., 0] if self.optional["curriculum_radius"] else zero(),
+            "success": flag("success"), "collision": flag("collision"),
             "terminated": nxt.get("terminated")[..., 0], "truncated": nxt.get("truncated")[..., 0],
-            "ret": ep.get("return")[..., 0], "path": ep.get("path_length")[..., 0], "straight": ep.get("straight_line")[..., 0],
+            "ret": ep.get("return")[..., 0], "path": stat("path_length"), "straight": stat("straight_line"),
+            **{f"reason_{k}": nxt.get(k)[..., 0] for k in self.end_reasons},
         }
         if self.term_names:
             out["terms"] = torch.cat([terms.get(k) for k in self.term_names], -1)
         if state is not None:
-            w = state.world
-            out.update(odom1=state.sim.odom, vel1=state.sim.vel, segments=w.segments, segment_mask=w.segment_mask,
-                       circles=w.circles, circle_mask=w.circle_mask, boxes=w.boxes, box_mask=w.box_mask)
+            out.update(odom1=state.sim.odom, vel1=state.sim.vel)
+            w = getattr(state, "world", None)
+            if w is not None:
+                out.update(segments=w.segments, segment_mask=w.segment_mask, circles=w.circles, circle_mask=w.circle_mask,
+                           boxes=w.boxes, box_mask=w.box_mask)
         else:
             out["vel1"] = self.env.task.command(td.get("action"))
         return TensorDict({k: v.index_select(0, idx).detach() for k, v in out.items()}, batch_size=[len(self.envs)])

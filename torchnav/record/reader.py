@@ -42,7 +42,7 @@ class Episode:
     episode: int
     start_time: int  # ns
     end_time: int | None  # ns; None if the recording stopped mid-episode
-    outcome: str  # success | collision | timeout | incomplete
+    outcome: str  # success | collision | timeout | incomplete, or the reason of a "terminated" event (left_line, ...)
     steps: int
     ret: float
     start: dict  # the start event (pose, goal, world)
@@ -89,7 +89,8 @@ class Recording:
                 eps[key] = Episode(d["env"], d["episode"], m.log_time, None, "incomplete", 0, 0.0, d)
             elif key in eps:
                 e = eps[key]
-                e.end_time, e.outcome, e.ret = m.log_time, d["event"], d.get("return", 0.0)
+                outcome = d.get("reason", "terminated") if d["event"] == "terminated" else d["event"]
+                e.end_time, e.outcome, e.ret = m.log_time, outcome, d.get("return", 0.0)
         for key, e in eps.items():
             e.steps = steps.get(key, 0)
             if e.outcome == "incomplete":

@@ -45,6 +45,15 @@ def _rows(a: np.ndarray, mask: np.ndarray) -> list[list[float]]:
     return np.round(a[mask].astype(np.float64), 6).tolist()
 
 
+def line_list(segments: Any, thickness: float, rgba: tuple[float, float, float, float], z: float = 0.001) -> dict:
+    """A Foxglove LinePrimitive (LINE_LIST) drawing segments ``(S, 4)`` ``[x1, y1, x2, y2]`` (m) on the floor."""
+    seg = np.round(np.asarray(segments, dtype=np.float64).reshape(-1, 4), 5).tolist()
+    pts = [{"x": x, "y": y, "z": z} for s in seg for x, y in ((s[0], s[1]), (s[2], s[3]))]
+    r, g, b, a = rgba
+    return {"type": 2, "pose": pose(0.0, 0.0), "thickness": float(thickness), "scale_invariant": False, "points": pts,
+            "color": {"r": r, "g": g, "b": b, "a": a}, "colors": [], "indices": []}
+
+
 def entity(ns: int, frame: str, ident: str, **prims: list) -> dict:
     return {"timestamp": stamp(ns), "frame_id": frame, "id": ident, "lifetime": {"sec": 0, "nsec": 0},
             "frame_locked": False, "metadata": [], **_EMPTY, **prims}
@@ -63,12 +72,14 @@ class EnvStream:
         self.base = f"env{env_index}/base_link"
         self.laser = f"env{env_index}/laser"
         self.radius = float(env.cfg.robot.radius)
-        self.goal_tol = float(env.cfg.goal_tolerance)
+        self.goal_tol = float(getattr(env.cfg, "goal_tolerance", 0.0))
         li = env.task.params.lidar
         ang = li.angles()
         self.scan_head = {"frame_id": self.laser, "pose": pose(0.0, 0.0), "start_angle": ang[0], "end_angle": ang[-1]}
         self.laser_tf = (li.offset[0], li.offset[1], li.offset[2])
-        self.base_world = env.task.base_world  # fallback world: the map's fixed obstacles
+        # fallback world: the map's fixed obstacles (NavTask) or the env's only world (LineTask)
+        bw = getattr(env.task, "base_world", None)
+        self.base_world = bw if bw is not None else env.task.world
         self.clock = 0  # ticks of dt
         self.episode = -1
         self.in_episode = False
@@ -108,15 +119,21 @@ class EnvStream:
         self.ep_return = float(r["ret"])
         terms = {k: _f(x) for k, x in zip(self.rec.term_names, r["terms"])} if "terms" in r else {}
         success, collision = bool(r["success"]), bool(r["collision"])
-        self._add("reward", {
+        msg = {
             "env": self.env, "episode": self.episode, "step": self.ep_step, "reward": _f(reward), "return": _f(self.ep_return),
             "v": _f(v1), "omega": _f(w1), "terms": terms, "curriculum_radius": _f(r["radius"]),
             "goal_distance": _f(math.hypot(p1[0] - self.goal[0], p1[1] - self.goal[1])), "success": success, "collision": collision,
-        })
+        }
+        if not self.rec.optional["goal"]:
+            del msg["goal_distance"]
+        self._add("reward", msg)
         if bool(r["terminated"]) or bool(r["truncated"]):
-            kind = "success" if success else "collision" if collision else "timeout"
-            self._add("events", {"env": self.env, "episode": self.episode, "event": kind, "steps": self.ep_step,
-                                 "return": _f(self.ep_return), "path_length": _f(r["path"]), "straight_line": _f(r["straight"])})
+            kind = "success" if success else "collision" if collision else "timeout" if bool(r["truncated"]) or not bool(r["terminated"]) else "terminated"
+            event = {"env": self.env, "episode": self.episode, "event": kind, "steps": self.ep_step,
+                     "return": _f(self.ep_return), "path_length": _f(r["path"]), "straight_line": _f(r["straight"])}
+            if kind == "terminated":
+                event["reason"] = next((k for k in self.rec.end_reasons if bool(r[f"reason_{k}"])), "other")
+            self._add("events", event)
             self.in_episode = False
             self.finished_episodes += 1
             self.clock += 1  # the reset takes one tick, so the next start is strictly later
@@ -142,9 +159,12 @@ class EnvStream:
         self.static = ",".join(json.dumps(e) for e in self._static_entities(seg, cir, box))
         self.trail, self.trail_stride = [], 1
         p0 = r["pose0"]
-        self._add("events", {"env": self.env, "episode": self.episode, "event": "start",
-                             "start": [_f(x) for x in p0], "goal": [_f(x) for x in self.goal],
-                             "world": {"segments": seg, "circles": cir, "boxes": box, "fixed_only": fixed_only}})
+        start = {"env": self.env, "episode": self.episode, "event": "start",
+                 "start": [_f(x) for x in p0], "goal": [_f(x) for x in self.goal],
+                 "world": {"segments": seg, "circles": cir, "boxes": box, "fixed_only": fixed_only}}
+        if not self.rec.optional["goal"]:
+            del start["goal"]
+        self._add("events", start)
         self._frame(p0, r["ranges0"], (0.0, 0.0), p0 if "odom1" in r else None)
 
     def _static_entities(self, seg: list, cir: list, box: list) -> list[dict]:
@@ -159,12 +179,16 @@ class EnvStream:
         gx, gy = self.goal
         goal = {"pose": pose(gx, gy, 0.0, 0.01), "size": {"x": 2 * self.goal_tol, "y": 2 * self.goal_tol, "z": 0.02},
                 "bottom_scale": 1.0, "top_scale": 1.0, "color": color("goal")}
-        return [
+        out = [
             entity(t, self.frame, "walls", lines=[walls] if pts else []),
             entity(t, self.frame, "boxes", cubes=cubes),
             entity(t, self.frame, "circles", cylinders=cyls),
-            entity(t, self.frame, "goal", cylinders=[goal]),
         ]
+        if self.rec.optional["goal"]:
+            out.append(entity(t, self.frame, "goal", cylinders=[goal]))
+        for name, spec in self.rec.scene_lines.items():
+            out.append(entity(t, self.frame, name, lines=[line_list(spec["segments"], spec["thickness"], spec["color"])]))
+        return out
 
     def _frame(self, p: np.ndarray, ranges: np.ndarray, vel: tuple[float, float], odom: np.ndarray | None) -> None:
         """tf, scan, scene and odometry of the state at the current tick."""

@@ -214,7 +214,7 @@ def reward_schema(term_names: Sequence[str]) -> dict:
     }
 
 
-EVENT_KINDS = ("start", "success", "collision", "timeout")
+EVENT_KINDS = ("start", "success", "collision", "timeout", "terminated")
 
 
 def event_schema() -> dict:
@@ -226,6 +226,7 @@ def event_schema() -> dict:
         "properties": {
             "env": _INT, "episode": _INT,
             "event": {"type": "string", "enum": list(EVENT_KINDS)},
+            "reason": {"type": "string", "description": "why a 'terminated' episode ended (the env's flag, e.g. left_line)"},
             "steps": {**_INT, "description": "steps done in the episode"},
             "return": _NUM, "path_length": {**_NUM, "description": "m driven"},
             "straight_line": {**_NUM, "description": "start-goal distance, m"},
