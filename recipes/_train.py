@@ -17,10 +17,13 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import torch
+from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from tqdm import tqdm
 
 import _common as C
+
+from torchnav.config import merge
 
 from torchnav.envs import NavEnv
 from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize
@@ -57,11 +60,71 @@ class NavAdapter:
     def status(self, env) -> str:
         return f"radius {env.curriculum.radius.item():.2f}m"
 
+    def scalars(self, env) -> dict[str, float]:
+        return {"curriculum/radius": env.curriculum.radius.item()}
+
     def task_config(self) -> dict[str, Any]:
         return C.to_dict(self.config)
 
     def info(self) -> dict[str, Any]:
         return {"map": self.config.map}
+
+
+class LineAdapter:
+    """The line-following task: env, lap-completion evaluation from random starts, recording."""
+
+    name = "line"
+    outcome_keys = ("left_line", "stalled")
+
+    def __init__(self, cfg) -> None:
+        from torchnav.tasks import LineConfig
+
+        d = merge(OmegaConf.to_container(cfg.task, resolve=True), {k: v for k, v in OmegaConf.to_container(cfg.env).items() if k != "num_envs"})
+        d = merge(d, {"reward": OmegaConf.to_container(cfg.reward, resolve=True)})
+        self.config = LineConfig.from_dict(d, where="config")
+        self.laps = int(cfg.eval.laps)
+
+    def make_env(self, num_envs: int, device, seed: int):
+        from torchnav.envs import LineEnv
+
+        return LineEnv(self.config, num_envs=num_envs, device=device, seed=seed)
+
+    def evaluate(self, policy, episodes: int, seed: int, device) -> dict[str, Any]:
+        from torchnav.line_evaluation import run_line_episodes, summarize_laps
+
+        s = summarize_laps(run_line_episodes(policy, self.config, episodes, seed=seed, laps=self.laps, device=device), dt=self.config.robot.dt)
+        s["score"] = s["lap_complete"]["rate"]
+        return s
+
+    def describe(self, s: dict[str, Any]) -> str:
+        return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("lap_complete", "left_line", "stalled", "timeout"))
+
+    def format(self, s: dict[str, Any]) -> str:
+        from torchnav.line_evaluation import format_lap_summary
+
+        return format_lap_summary(s, title=f"final evaluation on {self.config.track}: {self.laps} lap(s) from random starts, deterministic policy")
+
+    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
+        from torchnav.record import EpisodeRecorder, record_rollout
+        from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+        env = self.make_env(episodes, device, seed)
+        with EpisodeRecorder(path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1) as rec:
+            with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+                record_rollout(env, policy, max_steps=self.config.max_steps, recorder=rec, stack=False)
+        return rec
+
+    def status(self, env) -> str:
+        return ""
+
+    def scalars(self, env) -> dict[str, float]:
+        return {}
+
+    def task_config(self) -> dict[str, Any]:
+        return C.to_dict(self.config)
+
+    def info(self) -> dict[str, Any]:
+        return {"track": self.config.track}
 
 
 class Trainer:
@@ -161,13 +224,14 @@ class Trainer:
                 bar.set_postfix_str(" ".join(f"{k} {100 * v:.0f}%" for k, v in rates.items()) + f" {self.task.status(self.env)} {fps:,.0f} fr/s")
                 if c["batches"] % 10 == 0:
                     for k, v in {**{f"train/{k}_rate": v for k, v in rates.items()}, "perf/frames_per_s": fps,
-                                 "time/wall_s": c["wall_time"], **{f"loss/{k}": v for k, v in losses.items()}}.items():
+                                 "time/wall_s": c["wall_time"], **{f"loss/{k}": v for k, v in losses.items()},
+                                 **self.task.scalars(self.env)}.items():
                         log.log_scalar(k, v, step=c["frames"])
                 if cfg.eval.interval_frames and c["frames"] - last_eval >= cfg.eval.interval_frames:
                     last_eval = c["frames"]
                     s = self.evaluate(int(cfg.eval.episodes), 10_000 + int(cfg.seed))
                     c["wall_time"] = time.perf_counter() - t_start
-                    log.log_scalar("eval/score", s["score"], step=c["frames"])
+                    _log_rates(log, "eval", s, c["frames"])
                     log.log_scalar("eval/wall_s", c["wall_time"], step=c["frames"])
                     bar.write(f"[eval @ {c['frames']:,} frames, {c['wall_time']:.0f} s] {self.task.describe(s)}")
                     if c["time_to_target"] is None and s["score"] >= cfg.eval.target_success:
@@ -212,7 +276,7 @@ class Trainer:
             "train_wall_s": c["wall_time"], "time_to_target_s": c["time_to_target"],
             "frames_to_target": c["frames_to_target"], "eval": summary, "eval_wall_s": time.perf_counter() - t0,
         }
-        self.logger.log_scalar("final/score", summary["score"], step=c["frames"])
+        _log_rates(self.logger, "final", summary, c["frames"])
         if cfg.eval.record_episodes:
             rec = self.task.record(to_policy(self.export_actor()), self.run / "episodes.mcap", int(cfg.eval.record_episodes),
                                    20_000 + int(cfg.seed), self.device,
@@ -225,6 +289,14 @@ class Trainer:
               + (f"; reached {100 * cfg.eval.target_success:.0f}% at {c['time_to_target']:.0f} s" if c["time_to_target"] else ""))
         print(f"  run directory: {self.run}  (actor.pt, checkpoint.pt, summary.json, logs/)")
         return result
+
+
+def _log_rates(logger, prefix: str, summary: dict[str, Any], step: int) -> None:
+    """``<prefix>/<outcome>_rate`` for every rate in an evaluation summary, and ``<prefix>/score``."""
+    for k, v in summary.items():
+        if isinstance(v, dict) and "rate" in v:
+            logger.log_scalar(f"{prefix}/{k}_rate", v["rate"], step=step)
+    logger.log_scalar(f"{prefix}/score", summary["score"], step=step)
 
 
 REPLAY_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))

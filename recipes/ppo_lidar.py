@@ -28,7 +28,7 @@ from torchrl.objectives.value import GAE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import Trainer, main_guard  # noqa: E402
+from _train import NavAdapter, Trainer, main_guard  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -54,11 +54,12 @@ def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
     return obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
 
 
-def main(argv: list[str]) -> dict:
-    t = Trainer("ppo_lidar", argv, ckpt_format="torchnav-ppo-v1")
+def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -> dict:
+    """Train; ``name`` picks ``configs/<name>.yaml`` and ``adapter`` the task (``ppo_line.py`` reuses this)."""
+    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", adapter=adapter)
     cfg, tc, env, device = t.cfg, t.cfg.train, t.env, t.device
     if t.task.config.action.mode != "continuous":
-        raise C.ConfigError("this PPO recipe needs task.action.mode=continuous")
+        raise C.ConfigError("PPO here needs task.action.mode=continuous")
     if int(tc.frames_per_batch) % int(cfg.env.num_envs):
         raise C.ConfigError(f"train.frames_per_batch ({tc.frames_per_batch}) must be a multiple of env.num_envs ({cfg.env.num_envs})")
 

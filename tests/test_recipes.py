@@ -150,3 +150,56 @@ def test_td3_short_run_on_empty_clears_threshold(tmp_path):
         "eval.final_episodes=200", "eval.record_episodes=0", "logger.progress=false", f"logger.run_dir={tmp_path / 'run'}",
     ])
     assert res["eval"]["success"]["rate"] >= 0.8, res["eval"]
+
+
+LINE_COMMON = [
+    "threads=1", "env.num_envs=16", "env.max_steps=80", "eval.interval_frames=256", "eval.episodes=8",
+    "eval.final_episodes=16", "eval.record_episodes=2", "checkpoint.interval_frames=256", "logger.progress=false",
+    "env.track=oval", "train.hidden=[16,16]", "train.obs_stats_steps=4",
+]
+LINE_ARGS = {
+    "ppo_line": LINE_COMMON + ["train.frames_per_batch=128", "train.minibatch_size=64", "train.epochs=2"],
+    "dqn_line": LINE_COMMON + ["train.frames_per_batch=128", "train.init_random_frames=128", "train.updates_per_batch=4",
+                               "train.batch_size=32", "train.buffer_size=10000"],
+}
+
+
+@pytest.mark.parametrize("recipe", sorted(LINE_ARGS))
+def test_line_recipe_smoke_resume_and_export(tmp_path, recipe):
+    from torchnav.export import export
+    from torchnav.policy import load_policy
+    from torchnav.record import read_recording
+
+    run = tmp_path / "run"
+    res = _run(recipe, LINE_ARGS[recipe] + ["train.total_frames=512", f"logger.run_dir={run}"])
+    assert res["frames"] == 512 and res["track"] == "oval"
+    for f in ("config.yaml", "checkpoint.pt", "actor.pt", "summary.json", "episodes.mcap"):
+        assert (run / f).is_file(), f
+    ev = json.loads((run / "summary.json").read_text())["eval"]
+    assert ev["episodes"] == 16
+    assert sum(ev[k]["count"] for k in ("lap_complete", "left_line", "stalled", "collision", "timeout")) == 16
+    sp = load_policy(run / "actor.pt")
+    assert sp.task == "line" and sp.config().track == "oval"
+    if recipe == "dqn_line":
+        assert sp.actor.output == "argmax" and sp.action_table is not None and sp.action_table.shape == (len(sp.config().action.discrete_set), 2)
+    else:
+        assert sp.actor.output == "tanh" and sp.actor.obs_scale.ne(1).any(), "observation normalisation was not baked in"
+    rec = read_recording(run / "episodes.mcap")
+    assert {e.env for e in rec.episodes()} == {0, 1}
+    assert any(e["id"] == "track" for e in rec.topic("/env0/scene")[0].data["entities"]), "the track is not in the MCAP scene"
+
+    res2 = _run(recipe, LINE_ARGS[recipe] + ["train.total_frames=1024", f"checkpoint.resume={run}"])
+    assert res2["frames"] == 1024
+
+    out = export(run / "actor.pt", onnx_path=tmp_path / "p.onnx", c_dir=tmp_path / "c", verify=64)
+    assert (tmp_path / "p.onnx").is_file() and (tmp_path / "c" / "policy.c").is_file()
+    assert out is not None
+
+
+def test_line_recipe_needs_matching_action_mode():
+    from torchnav.config import ConfigError
+
+    with pytest.raises(ConfigError, match="discrete"):
+        _run("dqn_line", LINE_ARGS["dqn_line"] + ["task.action.mode=continuous"])
+    with pytest.raises(ConfigError, match="continuous"):
+        _run("ppo_line", LINE_ARGS["ppo_line"] + ["task.action.mode=discrete"])

@@ -123,7 +123,7 @@ class SavedPolicy:
 
             return NavConfig.from_dict(self.task_config, where=f"{self.path}:task_config")
         if self.task == "line":
-            from .tasks.line import LineConfig
+            from .tasks import LineConfig
 
             return LineConfig.from_dict(self.task_config, where=f"{self.path}:task_config")
         raise ValueError(f"{self.path}: unknown task {self.task!r}")
