@@ -66,6 +66,7 @@ def run_episodes(
 ) -> dict[str, torch.Tensor]:
     """Run ``n_episodes`` episodes (one per env, in batches of at most ``max_batch`` envs).
 
+    A policy with a ``bind`` method is bound to each env created here (``policy.bind(env)``).
     Returns per-episode tensors: ``success``, ``collision``, ``timeout`` (bool),
     ``length`` (steps), ``return``, ``path_length`` and ``straight_line`` (m).
     """
@@ -76,12 +77,20 @@ def run_episodes(
     while done_so_far < n_episodes:
         n = min(max_batch, n_episodes - done_so_far)
         env = NavEnv(cfg, num_envs=n, device=device, seed=seed + 7919 * chunk_id)
+        bind_policy(policy, env)
         res = _one_episode_each(policy, env)
         for k in keys:
             parts[k].append(res[k].cpu())
         done_so_far += n
         chunk_id += 1
     return {k: torch.cat(v) for k, v in parts.items()}
+
+
+def bind_policy(policy: Any, env: NavEnv) -> None:
+    """Call ``policy.bind(env)`` if the policy has one (classical planners read the env's worlds)."""
+    bind = getattr(policy, "bind", None)
+    if callable(bind):
+        bind(env)
 
 
 def _one_episode_each(policy, env: NavEnv) -> dict[str, torch.Tensor]:
@@ -162,6 +171,7 @@ def record_episodes(
     from .record import EpisodeRecorder, record_rollout
 
     env = NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed)
+    bind_policy(policy, env)
     meta = {"seed": seed, **(metadata or {})}
     with EpisodeRecorder(path, env, envs=range(n_episodes), metadata=meta, episodes=1) as rec:
         with set_exploration_type(ExplorationType.DETERMINISTIC):

@@ -21,20 +21,26 @@ def obstacle_distance(spec: MapSpec, xy: np.ndarray) -> np.ndarray:
     Negative inside a circle or box (signed distance); walls are lines of zero
     thickness so the distance to them is never negative. ``+inf`` for an empty map.
     """
+    return obstacle_distance_arrays(xy, spec.segments, spec.circles, spec.boxes)
+
+
+def obstacle_distance_arrays(xy: np.ndarray, segments=(), circles=(), boxes=()) -> np.ndarray:
+    """:func:`obstacle_distance` for obstacles given as arrays in the layouts of ``World``:
+    walls ``(S, 4)``, circles ``(C, 3)``, boxes ``(K, 5)`` (half extents, yaw in rad). ``(N,)`` m."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     best = np.full(len(xy), np.inf)
-    if spec.segments:
-        s = np.asarray(spec.segments)  # (S, 4)
+    if len(segments):
+        s = np.asarray(segments, dtype=np.float64).reshape(-1, 4)  # (S, 4)
         a, d = s[:, :2], s[:, 2:] - s[:, :2]
         rel = xy[:, None, :] - a[None]  # (N, S, 2)
         t = np.clip((rel * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12), 0.0, 1.0)
         best = np.minimum(best, np.linalg.norm(rel - t[..., None] * d, axis=-1).min(1))
-    if spec.circles:
-        c = np.asarray(spec.circles)
+    if len(circles):
+        c = np.asarray(circles, dtype=np.float64).reshape(-1, 3)
         dist = np.linalg.norm(xy[:, None, :] - c[None, :, :2], axis=-1) - c[None, :, 2]
         best = np.minimum(best, dist.min(1))
-    if spec.boxes:
-        b = np.asarray(spec.boxes)  # (K, 5) cx, cy, hx, hy, yaw
+    if len(boxes):
+        b = np.asarray(boxes, dtype=np.float64).reshape(-1, 5)  # (K, 5) cx, cy, hx, hy, yaw
         rel = xy[:, None, :] - b[None, :, :2]
         cos, sin = np.cos(b[:, 4]), np.sin(b[:, 4])
         # Into each box's frame; then the usual signed distance of an axis-aligned rectangle.

@@ -1,0 +1,206 @@
+"""Classical controllers: each reaches goals on `empty`, the potential field's local minimum,
+planners find paths or report none, the tracker follows waypoints, batched == per env."""
+
+from __future__ import annotations
+
+import math
+import types
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from torchnav.config import ConfigError
+from torchnav.controllers import (
+    CONTROLLERS, Obstacles, OccupancyGrid, RRTParams, TrackerGains, WaypointTracker, make_controller, plan_astar, plan_rrt,
+)
+from torchnav.envs import make_env
+from torchnav.evaluation import eval_config, run_episodes
+from torchnav.tasks import CurriculumState, NavConfig, NavTask
+from torchnav.sim import init_state
+
+
+def rollout(ctrl, map_: str, start, goal, steps: int = 400):
+    """Run ``ctrl`` from poses ``start`` ``(B, 3)`` to goals ``(B, 2)``; returns (success, collision, poses)."""
+    cfg = NavConfig.from_dict({"map": map_, "curriculum": {"mode": "off"}})
+    start = torch.as_tensor(start, dtype=torch.float32)
+    goal = torch.as_tensor(goal, dtype=torch.float32)
+    n = start.shape[0]
+    task = NavTask(cfg, n)
+    state, _ = task.initial_state(CurriculumState.initial(cfg.curriculum), torch.Generator().manual_seed(0))
+    world = task.base_world  # fixed obstacles only: these tests place nothing at random
+    state.world = world
+    state.sim = init_state(start, world, task.params)
+    state.goal = goal
+    env = types.SimpleNamespace(cfg=cfg, num_envs=n, device=torch.device("cpu"), task=task, state=state)
+    ctrl.bind(env)
+    success = torch.zeros(n, dtype=torch.bool)
+    collision = torch.zeros(n, dtype=torch.bool)
+    done = torch.zeros(n, dtype=torch.bool)
+    poses = [start]
+    for _ in range(steps):
+        env.state = state
+        td = TensorDict({"pose": state.sim.pose, "goal": state.goal, "ranges": state.sim.ranges,
+                         "episode": {"length": state.steps[:, None].float()}}, batch_size=[n])
+        state, out = task.step(state, ctrl(td)["action"])
+        success |= out["success"] & ~done
+        collision |= out["collision"] & ~done
+        done |= out["terminated"]
+        poses.append(state.sim.pose)
+        if done.all():
+            break
+    return success, collision, torch.stack(poses, 1)
+
+
+STARTS = [[-3.0, -3.0, 0.0], [3.0, 3.0, math.pi], [0.0, 0.0, math.pi / 2], [-3.5, 3.0, -1.0], [2.0, -3.0, 2.5], [0.0, 3.5, 0.0]]
+GOALS = [[3.0, 3.0], [-3.0, -2.0], [0.0, -3.0], [3.0, 0.0], [-2.0, 2.0], [0.0, 0.5]]  # several behind the robot
+
+
+@pytest.mark.parametrize("name", list(CONTROLLERS))
+def test_each_controller_reaches_goal_on_empty(name):
+    success, collision, _ = rollout(make_controller(name), "empty", STARTS, GOALS)
+    assert success.all(), f"{name}: failed from starts {[s for s, ok in zip(STARTS, success) if not ok]}"
+    assert not collision.any()
+
+
+CUP = """
+name: cup
+size: [10.0, 10.0]
+walls:
+  - boundary
+  - [1.0, -1.5, 1.0, 1.5]     # the bottom of the cup, between the robot and the goal
+  - [1.0, -1.5, -0.5, -1.5]   # its two sides, open towards the robot
+  - [1.0, 1.5, -0.5, 1.5]
+"""
+
+
+def test_potential_field_trapped_in_cup_but_astar_escapes(tmp_path):
+    """The textbook local minimum: pull to the goal and push from the cup cancel inside it."""
+    path = tmp_path / "cup.yaml"
+    path.write_text(CUP)
+    start, goal = [[-3.0, 0.0, 0.0]], [[3.5, 0.0]]
+    success, collision, poses = rollout(make_controller("potential_field"), str(path), start, goal, steps=300)
+    assert not success.any() and not collision.any()
+    assert poses[0, -1, 0] < 1.0, "the robot should still be on the start side of the cup"
+    success, collision, _ = rollout(make_controller("astar"), str(path), start, goal, steps=300)
+    assert success.all() and not collision.any()
+
+
+def _box_world(enclosed: bool) -> Obstacles:
+    walls = [[-5, -5, 5, -5], [5, -5, 5, 5], [5, 5, -5, 5], [-5, 5, -5, -5], [0, -5, 0, 3.0]]  # a wall with a gap at the top
+    if enclosed:
+        walls += [[2, 2, 4, 2], [4, 2, 4, 4], [4, 4, 2, 4], [2, 4, 2, 2]]  # a closed square around the goal
+    return Obstacles(np.asarray(walls, float), np.zeros((0, 3)), np.asarray([[-2.5, 0.0, 0.5, 1.0, 0.3]]), (-5, -5, 5, 5))
+
+
+def _check_path(obs: Obstacles, path: np.ndarray, start, goal, inflate: float):
+    assert np.allclose(path[0], start) and np.allclose(path[-1], goal)
+    pts = np.concatenate([a + np.linspace(0, 1, 50)[:, None] * (b - a) for a, b in zip(path[:-1], path[1:])])
+    assert obs.clearance(pts).min() > inflate - 0.08  # grid sampling loses at most half a cell diagonal
+
+
+def test_astar_finds_path_or_reports_none():
+    start, goal, inflate = np.array([-3.0, -3.0]), np.array([3.0, 3.0]), 0.3
+    obs = _box_world(enclosed=False)
+    path = plan_astar(OccupancyGrid.build(obs, 0.1), start, goal, inflate)
+    assert path is not None and path[:, 1].max() > 3.0  # through the gap above the dividing wall
+    _check_path(obs, path, start, goal, inflate)
+    assert len(path) <= 6  # shortcutting leaves a few corners, not a cell per step
+    assert plan_astar(OccupancyGrid.build(_box_world(enclosed=True), 0.1), start, goal, inflate) is None
+
+
+def test_rrt_finds_path_or_reports_none():
+    start, goal, inflate = np.array([-3.0, -3.0]), np.array([3.0, 3.0]), 0.3
+    obs = _box_world(enclosed=False)
+    path = plan_rrt(obs, start, goal, inflate, RRTParams(max_iters=3000), seed=1)
+    assert path is not None
+    _check_path(obs, path, start, goal, inflate + 0.08)  # exact checks: no grid loss
+    assert np.array_equal(path, plan_rrt(obs, start, goal, inflate, RRTParams(max_iters=3000), seed=1))  # deterministic
+    assert plan_rrt(_box_world(enclosed=True), start, goal, inflate, RRTParams(max_iters=300)) is None
+
+
+def _unicycle(pose, v, omega, dt=0.1):
+    th = pose[:, 2] + omega * dt
+    return torch.stack((pose[:, 0] + v * dt * torch.cos(pose[:, 2] + 0.5 * omega * dt),
+                        pose[:, 1] + v * dt * torch.sin(pose[:, 2] + 0.5 * omega * dt), th), -1)
+
+
+def test_tracker_follows_known_waypoints_and_batches():
+    paths = [np.array([[0, 0], [3, 0], [3, 3], [0, 3]], float), np.array([[0, 0], [2, 2]], float), np.array([[0, 0], [-2, 1], [-2, -2]], float)]
+    pose = torch.zeros(3, 3)
+    tr = WaypointTracker(TrackerGains(), 3, dt=0.1)
+    tr.set_paths([0, 1, 2], paths)
+    single = [WaypointTracker(TrackerGains(), 1, dt=0.1) for _ in paths]
+    for k, t in enumerate(single):
+        t.set_paths([0], [paths[k]])
+    poses = [pose]
+    for _ in range(300):
+        v, w = tr(pose)
+        for k, t in enumerate(single):  # batched tracker == each env tracked alone
+            vk, wk = t(pose[k : k + 1])
+            assert torch.allclose(v[k : k + 1], vk) and torch.allclose(w[k : k + 1], wk)
+        pose = _unicycle(pose, v.clamp(0, 1), w.clamp(-1, 1))
+        poses.append(pose)
+    traj = torch.stack(poses, 1)
+    for k, p in enumerate(paths):
+        assert np.hypot(*(traj[k, -1, :2].numpy() - p[-1])) < 0.15, f"path {k} not completed"
+        # the robot stays near the polyline (cross-track error)
+        seg = [a + np.linspace(0, 1, 200)[:, None] * (b - a) for a, b in zip(p[:-1], p[1:])]
+        line = np.concatenate(seg)
+        d = np.linalg.norm(traj[k, :, None, :2].numpy() - line[None], axis=-1).min(1)
+        assert d.max() < 0.15, f"path {k}: cross-track error {d.max():.3f} m"
+
+
+@pytest.mark.parametrize("name", ["go_to_goal", "reactive", "potential_field"])
+def test_batched_equals_per_env(name):
+    env = make_env("arena", num_envs=16, seed=3, curriculum={"mode": "off"})
+    td = env.reset()
+    ctrl = make_controller(name).bind(env)
+    batched = ctrl(td.clone())["action"]
+    for e in range(16):
+        one = ctrl(td[e : e + 1].clone())["action"]
+        assert torch.allclose(one, batched[e : e + 1], atol=1e-6)
+    assert batched.abs().max() <= 1.0
+
+
+def test_planners_in_evaluation_are_bound_and_succeed():
+    cfg = eval_config(NavConfig(), map="arena")
+    for name in ("astar", "rrt"):
+        ctrl = make_controller(name)
+        res = run_episodes(ctrl, cfg, 12, seed=5)
+        assert res["success"].float().mean() >= 0.9, name
+        assert ctrl.stats["plans"] == 12
+
+
+def test_planner_needs_binding_and_errors_are_clear():
+    td = make_env("empty", num_envs=2).reset()
+    with pytest.raises(RuntimeError, match="bind"):
+        make_controller("astar")(td)
+    with pytest.raises(ConfigError, match="unknown controller 'astr'.*did you mean 'astar'"):
+        make_controller("astr")
+    with pytest.raises(ConfigError, match="unknown key 'k_vv'"):
+        make_controller("go_to_goal", k_vv=1.0)
+    with pytest.raises(ConfigError, match="tracker: unknown key 'kk'"):
+        make_controller("astar", tracker={"kk": 1.0})
+    with pytest.raises(ConfigError, match="use the 'rrt' controller"):
+        make_controller("astar", planner="rrt")
+    with pytest.raises(ConfigError, match="no_path"):
+        make_controller("rrt", no_path="spin")
+    with pytest.raises(ConfigError, match="continuous"):
+        make_controller("reactive", nav=NavConfig.from_dict({"action": {"mode": "discrete"}}))
+
+
+def test_no_path_stops():
+    """A goal walled in: the planner reports no path and the robot stands still (no_path='stop')."""
+    import tempfile
+    from pathlib import Path
+
+    text = "size: [10.0, 10.0]\nwalls:\n  - boundary\n  - [2, 2, 4, 2]\n  - [4, 2, 4, 4]\n  - [4, 4, 2, 4]\n  - [2, 4, 2, 2]\n"
+    with tempfile.TemporaryDirectory() as d:
+        p = Path(d) / "box.yaml"
+        p.write_text(text)
+        ctrl = make_controller("astar")
+        success, collision, poses = rollout(ctrl, str(p), [[-3.0, -3.0, 0.0]], [[3.0, 3.0]], steps=20)
+    assert ctrl.stats["no_path"] == 1 and not success.any() and not collision.any()
+    assert torch.allclose(poses[0, -1], poses[0, 0])
