@@ -36,9 +36,13 @@ class NavAdapter:
     name = "nav"
     outcome_keys = ("success", "collision")  # flags read from the next state of finished training episodes
 
-    def __init__(self, cfg) -> None:
-        self.config = C.nav_config(cfg)
-        self.eval_config = eval_config(self.config)
+    def __init__(self, config, anywhere: bool = True) -> None:
+        self.config = config
+        self.eval_config = eval_config(config, anywhere=anywhere)
+
+    @classmethod
+    def from_recipe(cls, cfg) -> "NavAdapter":
+        return cls(C.nav_config(cfg))
 
     def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
         return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed)
@@ -51,8 +55,8 @@ class NavAdapter:
     def describe(self, s: dict[str, Any]) -> str:
         return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("success", "collision", "timeout"))
 
-    def format(self, s: dict[str, Any]) -> str:
-        return format_summary(s, title=f"final evaluation on {self.config.map}, goals anywhere, deterministic policy")
+    def format(self, s: dict[str, Any], title: str | None = None) -> str:
+        return format_summary(s, title=title or f"final evaluation on {self.config.map}, goals anywhere, deterministic policy")
 
     def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
         return record_episodes(policy, self.eval_config, path, episodes, seed=seed, device=device, metadata=metadata)
@@ -67,7 +71,7 @@ class NavAdapter:
         return C.to_dict(self.config)
 
     def info(self) -> dict[str, Any]:
-        return {"map": self.config.map}
+        return {"map": self.eval_config.map}
 
 
 class LineAdapter:
@@ -76,13 +80,16 @@ class LineAdapter:
     name = "line"
     outcome_keys = ("left_line", "stalled")
 
-    def __init__(self, cfg) -> None:
+    def __init__(self, config, laps: int = 1) -> None:
+        self.config, self.laps = config, int(laps)
+
+    @classmethod
+    def from_recipe(cls, cfg) -> "LineAdapter":
         from torchnav.tasks import LineConfig
 
         d = merge(OmegaConf.to_container(cfg.task, resolve=True), {k: v for k, v in OmegaConf.to_container(cfg.env).items() if k != "num_envs"})
         d = merge(d, {"reward": OmegaConf.to_container(cfg.reward, resolve=True)})
-        self.config = LineConfig.from_dict(d, where="config")
-        self.laps = int(cfg.eval.laps)
+        return cls(LineConfig.from_dict(d, where="config"), laps=cfg.eval.laps)
 
     def make_env(self, num_envs: int, device, seed: int):
         from torchnav.envs import LineEnv
@@ -99,10 +106,10 @@ class LineAdapter:
     def describe(self, s: dict[str, Any]) -> str:
         return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("lap_complete", "left_line", "stalled", "timeout"))
 
-    def format(self, s: dict[str, Any]) -> str:
+    def format(self, s: dict[str, Any], title: str | None = None) -> str:
         from torchnav.line_evaluation import format_lap_summary
 
-        return format_lap_summary(s, title=f"final evaluation on {self.config.track}: {self.laps} lap(s) from random starts, deterministic policy")
+        return format_lap_summary(s, title=title or f"final evaluation on {self.config.track}: {self.laps} lap(s) from random starts, deterministic policy")
 
     def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
         from torchnav.record import EpisodeRecorder, record_rollout
@@ -144,7 +151,7 @@ class Trainer:
             torch.set_num_threads(int(cfg.threads))
         C.seed_everything(cfg.seed)
         self.device = torch.device(cfg.device)
-        self.task = adapter(cfg)
+        self.task = adapter.from_recipe(cfg)
         self.run = C.make_run_dir(cfg, name)
         C.save_config(cfg, self.run)
         self.logger = C.make_logger(cfg, self.run)

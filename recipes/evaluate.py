@@ -1,5 +1,6 @@
 """Evaluate a saved policy on any map: success, collision and timeout rates, steps to goal and
-path-length ratio, with 95% confidence intervals.
+path-length ratio, with 95% confidence intervals. Line-following policies are evaluated
+on lap completion from random starts (``--track``, ``--laps``).
 
     python recipes/evaluate.py                                  # the shipped checkpoint on arena
     python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
@@ -23,27 +24,28 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
+from _train import LineAdapter, NavAdapter  # noqa: E402
 
 from torchnav.config import merge  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
-from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize  # noqa: E402
-from torchnav.tasks import NavConfig  # noqa: E402
+from torchnav.tasks import LineConfig, NavConfig  # noqa: E402
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "td3_arena_actor.pt"
 
 
 def load_actor(path: Path):
-    """Deterministic policy and the NavConfig it was trained with, from ``actor.pt`` or a recipe's ``checkpoint.pt``."""
+    """Deterministic navigation policy and the NavConfig it was trained with, from ``actor.pt`` or ``checkpoint.pt``."""
     sp = load_policy(path)
     if sp.task != "nav":
-        raise RuntimeError(f"{path}: a {sp.task!r} policy; evaluate.py runs navigation policies")
+        raise RuntimeError(f"{path}: a {sp.task!r} policy, not a navigation policy")
     return sp.policy, sp.config()
 
 
 def main(argv: list[str]) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", nargs="?", default=str(DEFAULT_CHECKPOINT), help="actor.pt or checkpoint.pt (default: the shipped arena policy)")
-    p.add_argument("--map", default=None, help="map name or YAML path (default: the map it was trained on)")
+    p.add_argument("--map", "--track", dest="map", default=None, help="map (navigation) or track (line following) name or YAML path (default: the one it was trained on)")
+    p.add_argument("--laps", type=int, default=1, help="line following: laps an episode must complete to succeed (default 1)")
     p.add_argument("--episodes", type=int, default=1000, help="number of episodes (default 1000)")
     p.add_argument("--seed", type=int, default=20_000, help="scenario seed (default 20000)")
     p.add_argument("--curriculum", action="store_true", help="keep the training curriculum's goal radius instead of goals anywhere")
@@ -58,8 +60,8 @@ def main(argv: list[str]) -> dict:
         p.error("--episodes must be >= 1")
     torch.set_num_threads(a.threads)
     ckpt = Path(a.checkpoint)
-    actor, nav = load_actor(ckpt)
-    actor = actor.to(a.device)
+    sp = load_policy(ckpt)
+    actor = sp.policy.to(a.device)
     over = {}
     for kv in a.set:
         if "=" not in kv:
@@ -70,19 +72,26 @@ def main(argv: list[str]) -> dict:
         for part in parts[:-1]:
             node = node.setdefault(part, {})
         node[parts[-1]] = yaml.safe_load(v)
-    nav = NavConfig.from_dict(merge(C.to_dict(nav), over), where="--set")
-    cfg = eval_config(nav, map=a.map, anywhere=not a.curriculum)
-    res = summarize(run_episodes(actor, cfg, a.episodes, seed=a.seed, device=a.device))
-    title = f"{ckpt.name} on {cfg.map}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
-    print(format_summary(res, title=title))
-    out = {"checkpoint": str(ckpt), "map": cfg.map, "seed": a.seed, "episodes": a.episodes, **res}
+    if sp.task == "nav":
+        task = NavAdapter(NavConfig.from_dict(merge(sp.task_config, {**over, **({"map": a.map} if a.map else {})}), where="--set"),
+                          anywhere=not a.curriculum)
+        where = task.eval_config.map
+        title = f"{ckpt.name} on {where}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
+    else:
+        task = LineAdapter(LineConfig.from_dict(merge(sp.task_config, {**over, **({"track": a.map} if a.map else {})}), where="--set"),
+                           laps=a.laps)
+        where = task.config.track
+        title = f"{ckpt.name} on {where}, {a.laps} lap(s) from random starts, seed {a.seed}"
+    res = task.evaluate(actor, a.episodes, a.seed, a.device)
+    print(task.format(res, title=title))
+    out = {"checkpoint": str(ckpt), "task": sp.task, "map": where, "seed": a.seed, "episodes": a.episodes, **res}
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(out, indent=2))
         print(f"wrote {a.json}")
     if a.record:
         path = Path(a.record_path) if a.record_path else ckpt.parent / "eval_episodes.mcap"
-        rec = record_episodes(actor, cfg, path, a.record, seed=a.seed, device=a.device, metadata={"checkpoint": str(ckpt), "map": cfg.map})
+        rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where})
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
     return out
 

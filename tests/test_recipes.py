@@ -203,3 +203,15 @@ def test_line_recipe_needs_matching_action_mode():
         _run("dqn_line", LINE_ARGS["dqn_line"] + ["task.action.mode=continuous"])
     with pytest.raises(ConfigError, match="continuous"):
         _run("ppo_line", LINE_ARGS["ppo_line"] + ["task.action.mode=discrete"])
+
+
+def test_evaluate_line_policy(tmp_path):
+    import evaluate
+
+    run = tmp_path / "run"
+    _run("ppo_line", LINE_ARGS["ppo_line"] + ["train.total_frames=128", "eval.record_episodes=0", f"logger.run_dir={run}"])
+    out = evaluate.main([str(run / "actor.pt"), "--episodes", "8", "--threads", "1", "--track", "loop", "--record", "1",
+                         "--json", str(tmp_path / "e.json"), "--set", "max_steps=50"])
+    assert out["task"] == "line" and out["map"] == "loop" and out["episodes"] == 8
+    assert sum(out[k]["count"] for k in ("lap_complete", "left_line", "stalled", "collision", "timeout")) == 8
+    assert (run / "eval_episodes.mcap").is_file()
