@@ -215,3 +215,15 @@ def test_evaluate_line_policy(tmp_path):
     assert out["task"] == "line" and out["map"] == "loop" and out["episodes"] == 8
     assert sum(out[k]["count"] for k in ("lap_complete", "left_line", "stalled", "collision", "timeout")) == 8
     assert (run / "eval_episodes.mcap").is_file()
+
+
+def test_training_bench_runs_seeds_and_tabulates(tmp_path):
+    sys.path.insert(0, str(ROOT / "bench"))
+    import training
+
+    rows = training.main(["ppo_line", "--seeds", "3", "--out", str(tmp_path), "--json", str(tmp_path / "t.json"), "--",
+                          *LINE_ARGS["ppo_line"], "train.total_frames=256", "eval.record_episodes=0"])
+    assert len(rows) == 1 and rows[0]["seed"] == 3 and rows[0]["score_key"] == "lap_complete"
+    assert 0.0 <= rows[0]["score"] <= 1.0 and rows[0]["command_wall_s"] > 0
+    assert json.loads((tmp_path / "t.json").read_text())["rows"][0]["frames"] == 256
+    assert "| 3 |" in training.table("ppo_line", rows)

@@ -1,0 +1,100 @@
+"""Time-to-result of a training recipe over several seeds, in one run.
+
+    python bench/training.py ppo_lidar --seeds 0 1 2
+    python bench/training.py ppo_line --seeds 0 1 2 --out runs/bench_ppo_line
+    python bench/training.py sac_lidar --seeds 0 -- train.total_frames=300000   # overrides after --
+
+Runs ``python recipes/<recipe>.py seed=S logger.run_dir=<out>/seedS logger.progress=false
+[overrides]`` for each seed one after the other (each in its own process, as a user
+would), times the whole command with a wall clock, and reads each run's
+``summary.json``. Prints one Markdown row per seed and the mean (sd): final score
+(success rate for navigation, lap-completion rate for line following) over
+``eval.final_episodes`` episodes with its 95% interval, whole-command wall time,
+training wall time, and when periodic evaluation first reached ``eval.target_success``.
+``--json`` also writes the table as JSON. Use an otherwise idle machine: on 2 cores
+another busy process makes every figure meaningless (docs/performance.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RECIPES = ("td3_lidar", "ppo_lidar", "sac_lidar", "ppo_line", "dqn_line")
+
+
+def score_of(ev: dict) -> tuple[str, dict]:
+    key = "success" if "success" in ev else "lap_complete"
+    return key, ev[key]
+
+
+def run_seed(recipe: str, seed: int, out: Path, overrides: list[str]) -> dict:
+    run = out / f"seed{seed}"
+    cmd = [sys.executable, str(ROOT / "recipes" / f"{recipe}.py"), f"seed={seed}", f"logger.run_dir={run}",
+           "logger.progress=false", *overrides]
+    print(f"$ {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, cwd=ROOT, env={**os.environ, "RL_WARNINGS": "False"}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise SystemExit(f"{recipe} seed {seed} failed (exit {p.returncode}):\n{p.stdout[-3000:]}")
+    summary = json.loads((run / "summary.json").read_text())
+    key, sc = score_of(summary["eval"])
+    return {"seed": seed, "score_key": key, "score": sc["rate"], "ci95": sc["ci95"], "episodes": summary["eval"]["episodes"],
+            "command_wall_s": wall, "train_wall_s": summary["train_wall_s"], "time_to_target_s": summary["time_to_target_s"],
+            "frames": summary["frames"], "frames_to_target": summary["frames_to_target"], "run_dir": str(run)}
+
+
+def _mean_sd(xs: list[float]) -> str:
+    if not xs:
+        return "never"
+    return f"{statistics.mean(xs):.1f} ({statistics.stdev(xs):.1f})" if len(xs) > 1 else f"{xs[0]:.1f}"
+
+
+def table(recipe: str, rows: list[dict]) -> str:
+    key = rows[0]["score_key"]
+    lines = [f"| seed | {key} ({rows[0]['episodes']} episodes) | 95% CI | whole command | training | eval first >= target at |",
+             "|---:|---:|---|---:|---:|---:|"]
+    for r in rows:
+        ttt = f"{r['time_to_target_s']:.0f} s ({r['frames_to_target']:,} frames)" if r["time_to_target_s"] is not None else "never"
+        lines.append(f"| {r['seed']} | {100 * r['score']:.1f}% | [{100 * r['ci95'][0]:.1f}, {100 * r['ci95'][1]:.1f}] | "
+                     f"{r['command_wall_s'] / 60:.1f} min | {r['train_wall_s']:.0f} s | {ttt} |")
+    reached = [r["time_to_target_s"] for r in rows if r["time_to_target_s"] is not None]
+    lines.append(f"| **mean (sd)** | **{_mean_sd([100 * r['score'] for r in rows])}%** | | "
+                 f"{_mean_sd([r['command_wall_s'] / 60 for r in rows])} min | {_mean_sd([r['train_wall_s'] for r in rows])} s | "
+                 f"{_mean_sd(reached)} s ({len(reached)}/{len(rows)} seeds) |")
+    return f"{recipe}\n\n" + "\n".join(lines)
+
+
+def main(argv: list[str]) -> list[dict]:
+    if "--" in argv:
+        i = argv.index("--")
+        argv, overrides = argv[:i], argv[i + 1:]
+    else:
+        overrides = []
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("recipe", choices=RECIPES)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--out", default=None, help="parent of the run directories (default runs/bench_<recipe>)")
+    p.add_argument("--json", default=None, help="also write the rows as JSON here")
+    a = p.parse_args(argv)
+    out = Path(a.out or ROOT / "runs" / f"bench_{a.recipe}")
+    load = os.getloadavg()[0]
+    if load > 0.5:
+        print(f"warning: load average {load:.2f} before the first run; timings need an idle machine", file=sys.stderr)
+    rows = [run_seed(a.recipe, s, out, overrides) for s in a.seeds]
+    print(table(a.recipe, rows))
+    if a.json:
+        Path(a.json).write_text(json.dumps({"recipe": a.recipe, "overrides": overrides, "rows": rows}, indent=2))
+    return rows
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
