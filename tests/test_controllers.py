@@ -4,53 +4,24 @@ planners find paths or report none, the tracker follows waypoints, batched == pe
 from __future__ import annotations
 
 import math
-import types
 
 import numpy as np
 import pytest
 import torch
-from tensordict import TensorDict
 
 from torchnav.config import ConfigError
 from torchnav.controllers import (
-    CONTROLLERS, Obstacles, OccupancyGrid, RRTParams, TrackerGains, WaypointTracker, make_controller, plan_astar, plan_rrt,
+    CONTROLLERS, Obstacles, OccupancyGrid, RRTParams, TrackerGains, WaypointTracker, drive, make_controller, plan_astar, plan_rrt,
 )
 from torchnav.envs import make_env
 from torchnav.evaluation import eval_config, run_episodes
-from torchnav.tasks import CurriculumState, NavConfig, NavTask
-from torchnav.sim import init_state
+from torchnav.tasks import NavConfig
 
 
 def rollout(ctrl, map_: str, start, goal, steps: int = 400):
     """Run ``ctrl`` from poses ``start`` ``(B, 3)`` to goals ``(B, 2)``; returns (success, collision, poses)."""
-    cfg = NavConfig.from_dict({"map": map_, "curriculum": {"mode": "off"}})
-    start = torch.as_tensor(start, dtype=torch.float32)
-    goal = torch.as_tensor(goal, dtype=torch.float32)
-    n = start.shape[0]
-    task = NavTask(cfg, n)
-    state, _ = task.initial_state(CurriculumState.initial(cfg.curriculum), torch.Generator().manual_seed(0))
-    world = task.base_world  # fixed obstacles only: these tests place nothing at random
-    state.world = world
-    state.sim = init_state(start, world, task.params)
-    state.goal = goal
-    env = types.SimpleNamespace(cfg=cfg, num_envs=n, device=torch.device("cpu"), task=task, state=state)
-    ctrl.bind(env)
-    success = torch.zeros(n, dtype=torch.bool)
-    collision = torch.zeros(n, dtype=torch.bool)
-    done = torch.zeros(n, dtype=torch.bool)
-    poses = [start]
-    for _ in range(steps):
-        env.state = state
-        td = TensorDict({"pose": state.sim.pose, "goal": state.goal, "ranges": state.sim.ranges,
-                         "episode": {"length": state.steps[:, None].float()}}, batch_size=[n])
-        state, out = task.step(state, ctrl(td)["action"])
-        success |= out["success"] & ~done
-        collision |= out["collision"] & ~done
-        done |= out["terminated"]
-        poses.append(state.sim.pose)
-        if done.all():
-            break
-    return success, collision, torch.stack(poses, 1)
+    out = drive(ctrl, NavConfig.from_dict({"map": map_}), start, goal, steps)
+    return out["success"], out["collision"], out["pose"]
 
 
 STARTS = [[-3.0, -3.0, 0.0], [3.0, 3.0, math.pi], [0.0, 0.0, math.pi / 2], [-3.5, 3.0, -1.0], [2.0, -3.0, 2.5], [0.0, 3.5, 0.0]]

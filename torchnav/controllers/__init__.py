@@ -18,6 +18,7 @@ from ..config import ConfigError
 from ..tasks import NavConfig
 from .base import Controller
 from .planning import Obstacles, OccupancyGrid, RRTParams, astar_cells, plan_astar, plan_rrt, shortcut
+from .rollout import drive
 from .reactive import GoToGoal, GoToGoalGains, PotentialField, PotentialFieldGains, Reactive, ReactiveGains
 from .tracker import AStarController, PlannerController, PlannerGains, RRTController, TrackerGains, WaypointTracker
 
@@ -50,5 +51,5 @@ __all__ = [
     "CONTROLLERS", "make_controller", "Controller",
     "GoToGoal", "GoToGoalGains", "Reactive", "ReactiveGains", "PotentialField", "PotentialFieldGains",
     "PlannerController", "AStarController", "RRTController", "PlannerGains", "TrackerGains", "WaypointTracker",
-    "Obstacles", "OccupancyGrid", "RRTParams", "astar_cells", "plan_astar", "plan_rrt", "shortcut",
+    "drive", "Obstacles", "OccupancyGrid", "RRTParams", "astar_cells", "plan_astar", "plan_rrt", "shortcut",
 ]
