@@ -9,6 +9,10 @@ Usage::
 MP4 needs ffmpeg on the PATH; GIF needs only Pillow (a matplotlib dependency).
 The animation shows the map with the episode's obstacles, the robot, its lidar
 rays, the goal and the trail, next to the reward of every step and the return.
+Line-following recordings (episodes without a goal) show the track (the scene's
+static line entities, e.g. ``track``) on a dark floor, the robot and its path,
+and no goal or rays (the forward ray only if the distance sensor is on); their
+summary counts the termination reasons (``left_line``, ``stalled``, ...).
 """
 
 from __future__ import annotations
@@ -25,21 +29,45 @@ import numpy as np
 from .reader import Episode, Recording, read_recording
 
 
+_STANDARD_META = ("version", "map", "seed", "checkpoint", "config", "envs", "num_envs", "dt", "lidar", "robot_radius",
+                  "goal_tolerance", "reward_terms", "created")
+NAV_OUTCOMES = ("success", "collision", "timeout")
+LINE_OUTCOMES = ("left_line", "stalled", "collision", "timeout")  # the end reasons of LineEnv, and its time limit
+
+
+def task_kind(episodes: Sequence[Episode]) -> str:
+    """``"line"`` if the episodes (``Recording.episodes()``) have no goal (a line-following recording), else ``"nav"``."""
+    return "line" if episodes and all("goal" not in e.start for e in episodes) else "nav"
+
+
 def summary(rec: Recording) -> str:
     """A text table of the recording's metadata and episodes."""
     info = rec.info
-    lines = [f"{rec.path}  ({'complete' if rec.complete else 'no summary: the writer was stopped; recovered what was flushed'})"]
-    lines.append("  " + "  ".join(f"{k}={info[k]}" for k in ("map", "seed", "checkpoint", "version", "dt") if info.get(k)))
     eps = rec.episodes()
+    kind = task_kind(eps)
+    lines = [f"{rec.path}  ({'complete' if rec.complete else 'no summary: the writer was stopped; recovered what was flushed'})"]
+    head = [f"task={kind}"] + [f"{'track' if k == 'map' and kind == 'line' else k}={info[k]}"
+                               for k in ("map", "seed", "checkpoint", "version", "dt", "created") if info.get(k)]
+    lines.append("  " + "  ".join(head))
+    extra = [f"{k}={_short(v)}" for k, v in info.items() if k not in _STANDARD_META]  # metadata= entries of the writer
+    if extra:
+        lines.append("  " + "  ".join(extra))
     lines.append(f"  {len(eps)} episodes, {len(rec.messages)} messages")
     lines.append(f"  {'env':>4} {'ep':>4} {'outcome':>10} {'steps':>6} {'return':>9} {'start [s]':>10}")
     for e in eps:
         lines.append(f"  {e.env:>4} {e.episode:>4} {e.outcome:>10} {e.steps:>6} {e.ret:>9.2f} {e.start_time / 1e9:>10.1f}")
     outcomes = [e.outcome for e in eps if e.outcome != "incomplete"]
     if outcomes:
-        rates = ", ".join(f"{k} {outcomes.count(k) / len(outcomes):.0%}" for k in ("success", "collision", "timeout"))
+        known = NAV_OUTCOMES if kind == "nav" else LINE_OUTCOMES
+        keys = known + tuple(sorted(set(outcomes) - set(known)))
+        rates = ", ".join(f"{k} {outcomes.count(k) / len(outcomes):.0%}" for k in keys)
         lines.append(f"  finished episodes: {len(outcomes)} ({rates})")
     return "\n".join(lines)
+
+
+def _short(v, n: int = 60) -> str:
+    s = v if isinstance(v, str) else json.dumps(v, default=str)
+    return s if len(s) <= n else s[: n - 3] + "..."
 
 
 def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
@@ -60,6 +88,39 @@ def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
             "reward": np.asarray(reward)}
 
 
+def scene_lines(rec: Recording, ep: Episode) -> dict[str, dict]:
+    """Static line entities of the episode's first ``/env{i}/scene`` other than walls and trail (e.g. the
+    line-following ``track``): name -> ``{"segments": (S, 4) m, "thickness": m, "color": (r, g, b, a)}``."""
+    scenes = rec.topic(f"/env{ep.env}/scene", ep.start_time, ep.end_time)
+    out: dict[str, dict] = {}
+    for ent in scenes[0].data.get("entities", []) if scenes else []:
+        if ent.get("id") in ("walls", "trail") or not ent.get("lines"):
+            continue
+        for k, ln in enumerate(ent["lines"]):
+            pts = np.asarray([(p["x"], p["y"]) for p in ln.get("points", [])], dtype=float).reshape(-1, 2)
+            if ln.get("type") == 2:  # LINE_LIST: point pairs
+                seg = pts[: len(pts) // 2 * 2].reshape(-1, 4)
+            else:  # LINE_STRIP / LINE_LOOP
+                if ln.get("type") == 1 and len(pts) > 2:
+                    pts = np.concatenate([pts, pts[:1]])
+                seg = np.concatenate([pts[:-1], pts[1:]], axis=1) if len(pts) > 1 else np.zeros((0, 4))
+            c = ln.get("color", {})
+            out[ent["id"] if k == 0 else f"{ent['id']}.{k}"] = {
+                "segments": seg, "thickness": float(ln.get("thickness", 0.02)),
+                "color": tuple(float(c.get(x, 1.0)) for x in ("r", "g", "b", "a"))}
+    return out
+
+
+def _distance_sensor_on(info: dict) -> bool:
+    """The line task's forward distance sensor is on (LineConfig in ``config``, or a recipe config's ``task``)."""
+    cfg = info.get("config") or {}
+    for d in (cfg, cfg.get("task") or {}) if isinstance(cfg, dict) else ():
+        ds = d.get("distance_sensor") if isinstance(d, dict) else None
+        if isinstance(ds, dict) and ds.get("enabled"):
+            return True
+    return False
+
+
 def _lidar(info: dict):
     from ..sim.params import LidarParams
 
@@ -75,6 +136,8 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
 
     from ..render import draw_goal, draw_obstacles, draw_rays, draw_robots
 
+    from matplotlib.collections import LineCollection
+
     out = Path(out)
     info = rec.info
     lidar = _lidar(info)
@@ -84,7 +147,10 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
     if len(fr["pose"]) == 0:
         raise ValueError(f"episode {ep.episode} of env {ep.env} has no frames in {rec.path}")
     world = ep.start["world"]
-    goal = np.asarray(ep.start["goal"])[None]
+    goal = np.asarray(ep.start["goal"], dtype=float).reshape(-1, 2) if "goal" in ep.start else np.zeros((0, 2))
+    line_task = len(goal) == 0  # line following: track, path and robot on a dark floor; rays only for the distance sensor
+    show_rays = not line_task or _distance_sensor_on(info)
+    tapes = scene_lines(rec, ep)
     idx = list(range(0, len(fr["pose"]), max(1, stride)))
     if idx[-1] != len(fr["pose"]) - 1:
         idx.append(len(fr["pose"]) - 1)
@@ -92,22 +158,34 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
     fig = Figure(figsize=(9, 4.5), dpi=dpi)
     ax, axr = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     axr2 = axr.twinx()
-    pts = np.concatenate([np.asarray(world["segments"]).reshape(-1, 2), fr["pose"][:, :2], goal])
-    lo, hi = pts.min(0) - 0.5, pts.max(0) + 0.5
+    pts = np.concatenate([np.asarray(world["segments"], dtype=float).reshape(-1, 2), fr["pose"][:, :2], goal,
+                          *(t["segments"].reshape(-1, 2) for t in tapes.values())])
+    pad = 0.15 if line_task else 0.5
+    lo, hi = pts.min(0) - pad, pts.max(0) + pad
     cum = np.cumsum(fr["reward"])
+    trail_color = "tab:orange" if line_task else "tab:blue"
 
     def draw(k: int):
         i = idx[k]
         ax.clear()
-        draw_obstacles(ax, world["segments"], world["circles"], world["boxes"])
-        draw_goal(ax, goal, env=0, radius=tol)
-        ax.plot(fr["pose"][: i + 1, 0], fr["pose"][: i + 1, 1], "-", color="tab:blue", lw=1.2, alpha=0.7)
-        if fr["ranges"].ndim == 2 and fr["ranges"].shape[1] == lidar.n_rays:
-            draw_rays(ax, fr["pose"][i : i + 1], fr["ranges"][i : i + 1], lidar, env=0)
-        draw_robots(ax, fr["pose"][i : i + 1], radius, env=0)
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
+        if tapes:  # drawn at their true width in m: points per m of the laid-out axes
+            ax.apply_aspect()
+            pts_per_m = ax.get_window_extent().width / (hi[0] - lo[0]) * 72 / fig.dpi
+            for t in tapes.values():
+                ax.add_collection(LineCollection(t["segments"].reshape(-1, 2, 2), colors=[t["color"]],
+                                                 linewidths=max(t["thickness"] * pts_per_m, 0.5), capstyle="round", zorder=1))
+        if line_task:
+            ax.set_facecolor("0.25")
+        draw_obstacles(ax, world["segments"], world["circles"], world["boxes"])
+        if len(goal):
+            draw_goal(ax, goal, env=0, radius=tol)
+        ax.plot(fr["pose"][: i + 1, 0], fr["pose"][: i + 1, 1], "-", color=trail_color, lw=1.2, alpha=0.8, zorder=3)
+        if show_rays and fr["ranges"].ndim == 2 and fr["ranges"].shape[1] == lidar.n_rays:
+            draw_rays(ax, fr["pose"][i : i + 1], fr["ranges"][i : i + 1], lidar, env=0)
+        draw_robots(ax, fr["pose"][i : i + 1], radius, env=0)
         ax.set_title(f"env {ep.env} episode {ep.episode}: {ep.outcome}  t={fr['time'][i]:.1f} s", fontsize=9)
         axr.clear()
         axr.plot(fr["time"], fr["reward"], color="0.6", lw=1, label="reward")
