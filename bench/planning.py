@@ -7,8 +7,8 @@ robot radius plus the first of the planner's margins. Rows, each timed per query
 ``time.perf_counter`` on one CPU thread (numpy and Python):
 
 * ``grid``   building the occupancy grid of one env: the map's fixed obstacles are
-             rasterised once per map (reported as ``fixed_grid_ms``), then each env adds
-             its random boxes by a minimum;
+             rasterised once per map (reported as ``fixed_grid_ms``), then each env
+             stamps its random boxes in, each within a window around it;
 * ``astar``  8-connected A* on that grid, plus shortcutting (``plan_astar``);
 * ``rrt``    RRT-Connect in continuous space with exact clearance checks, plus
              shortcutting (``plan_rrt``).
@@ -89,7 +89,7 @@ def main(argv: list[str]) -> list[dict[str, Any]]:
     for e in range(a.queries):
         full, rand = astar.env_obstacles(world, e)
         t0 = time.perf_counter()
-        grid = OccupancyGrid.build(rand, g.resolution, base=astar._fixed_grid.clearance)
+        grid = astar.grid(rand)
         t1 = time.perf_counter()
         path = plan_astar(grid, starts[e], goals[e], inflate, snap=g.snap)
         t2 = time.perf_counter()

@@ -58,15 +58,39 @@ class OccupancyGrid:
     resolution: float  # m
 
     @classmethod
-    def build(cls, obstacles: Obstacles, resolution: float, base: np.ndarray | None = None) -> "OccupancyGrid":
+    def build(cls, obstacles: Obstacles, resolution: float, base: np.ndarray | None = None, window: float | None = None) -> "OccupancyGrid":
         """Grid of ``obstacles``. ``base`` ``(ny, nx)``: a precomputed clearance of obstacles that
-        are not in ``obstacles`` (e.g. the map's fixed ones), combined by a minimum."""
+        are not in ``obstacles`` (e.g. the map's fixed ones), combined by a minimum.
+
+        With ``base`` and ``window`` (m), each obstacle is rasterised only within ``window`` of
+        its bounding box: values above ``window`` may then overstate the clearance, which
+        is harmless for every test against a threshold below ``window`` (inflation) and
+        several times cheaper for a few small objects on a large map.
+        """
         xmin, ymin, xmax, ymax = obstacles.bounds
         xs = np.arange(xmin + resolution / 2, xmax, resolution)
         ys = np.arange(ymin + resolution / 2, ymax, resolution)
+        if base is not None and window is not None:
+            return cls(cls._stamp(base.copy(), obstacles, xs, ys, resolution, window), xs, ys, resolution)
         gx, gy = np.meshgrid(xs, ys)
         c = obstacles.clearance(np.stack([gx.ravel(), gy.ravel()], -1)).reshape(gx.shape)
         return cls(c if base is None else np.minimum(c, base), xs, ys, resolution)
+
+    @staticmethod
+    def _stamp(c: np.ndarray, obs: Obstacles, xs: np.ndarray, ys: np.ndarray, res: float, window: float) -> np.ndarray:
+        """Lower ``c`` in place by each obstacle's distance within ``window`` m of its bounding box."""
+        items = [((min(s[0], s[2]), min(s[1], s[3]), max(s[0], s[2]), max(s[1], s[3])), (s[None], (), ())) for s in obs.segments]
+        items += [((x - r, y - r, x + r, y + r), ((), ci[None], ())) for ci in obs.circles for x, y, r in [ci]]
+        items += [((b[0] - e, b[1] - e, b[0] + e, b[1] + e), ((), (), b[None])) for b in obs.boxes for e in [math.hypot(b[2], b[3])]]
+        for (x0, y0, x1, y1), (seg, circ, box) in items:
+            i0, i1 = np.searchsorted(xs, [x0 - window, x1 + window])
+            j0, j1 = np.searchsorted(ys, [y0 - window, y1 + window])
+            if i1 <= i0 or j1 <= j0:
+                continue
+            gx, gy = np.meshgrid(xs[i0:i1], ys[j0:j1])
+            d = obstacle_distance_arrays(np.stack([gx.ravel(), gy.ravel()], -1), seg, circ, box).reshape(gx.shape)
+            np.minimum(c[j0:j1, i0:i1], d, out=c[j0:j1, i0:i1])
+        return c
 
     def cell(self, xy) -> tuple[int, int]:
         """``(row j, column i)`` of the cell holding point ``xy`` (clamped into the grid)."""
@@ -104,33 +128,37 @@ def astar_cells(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int])
     w = nx + 2  # pad with a blocked border: no bounds checks in the inner loop
     padded = np.zeros((ny + 2, w), dtype=bool)
     padded[1:-1, 1:-1] = free
-    ok = padded.ravel().tolist()
+    free_ = padded.ravel().tolist()  # the obstacle map, for corner checks
+    ok = list(free_)  # free and not yet closed
     s, g = (start[0] + 1) * w + start[1] + 1, (goal[0] + 1) * w + goal[1] + 1
     gj, gi = divmod(g, w)
-    straight = ((1, 1.0), (-1, 1.0), (w, 1.0), (-w, 1.0))
-    diagonal = ((w + 1, 1, w), (w - 1, -1, w), (-w + 1, 1, -w), (-w - 1, -1, -w))
+    # (offset, cost, the two orthogonal cells a diagonal step must not cut through, or 0)
+    steps = ((1, 1.0, 0, 0), (-1, 1.0, 0, 0), (w, 1.0, 0, 0), (-w, 1.0, 0, 0),
+             (w + 1, SQRT2, 1, w), (w - 1, SQRT2, -1, w), (-w + 1, SQRT2, 1, -w), (-w - 1, SQRT2, -1, -w))
     cost = {s: 0.0}
     parent = {s: -1}
-    closed = set()
-    heap = [(0.0, 0.0, s)]
+    # Ties in f go to the deeper node (larger g): on open ground far fewer cells are expanded.
+    heap = [(0.0, -0.0, s)]
     push, pop = heapq.heappush, heapq.heappop
+    c_diag = SQRT2 - 1.0
     while heap:
-        _, gc, u = pop(heap)
-        if u in closed:
+        _, neg_g, u = pop(heap)
+        if not ok[u]:  # already closed: a stale heap entry
             continue
         if u == g:
             break
-        closed.add(u)
-        moves = [(u + d, c) for d, c in straight if ok[u + d]]
-        moves += [(u + d, SQRT2) for d, dx, dy in diagonal if ok[u + d] and ok[u + dx] and ok[u + dy]]
-        for v, c in moves:
-            nc = gc + c
-            if v not in closed and nc < cost.get(v, math.inf):
-                cost[v] = nc
-                parent[v] = u
-                vj, vi = divmod(v, w)
-                dj, di = abs(vj - gj), abs(vi - gi)
-                push(heap, (nc + max(dj, di) + (SQRT2 - 1.0) * min(dj, di), nc, v))
+        ok[u] = False  # close u: it is never entered again
+        gc = -neg_g
+        for d, c, a, b in steps:
+            v = u + d
+            if ok[v] and (a == 0 or (free_[u + a] and free_[u + b])):
+                nc = gc + c
+                if nc < cost.get(v, math.inf):
+                    cost[v] = nc
+                    parent[v] = u
+                    vj, vi = divmod(v, w)
+                    dj, di = abs(vj - gj), abs(vi - gi)
+                    push(heap, (nc + (dj + c_diag * di if dj > di else di + c_diag * dj), -nc, v))
     else:
         return None
     path = []

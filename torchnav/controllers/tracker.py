@@ -224,6 +224,13 @@ class PlannerController(Controller):
         rand = Obstacles(np.zeros((0, 4)), circ[nc:][cm[nc:]], box[nb:][bm[nb:]], self._bounds)
         return Obstacles(seg, circ[cm], box[bm], self._bounds), rand
 
+    def grid(self, rand: Obstacles) -> OccupancyGrid:
+        """The occupancy grid of one episode: the cached grid of the map's fixed obstacles with the
+        episode's random ones stamped in (exact up to the largest inflation plus two cells)."""
+        g = self.gains
+        window = self.radius + max(g.margins) + 2 * g.resolution
+        return OccupancyGrid.build(rand, g.resolution, base=self._fixed_grid.clearance, window=window)
+
     def plan(self, world, e: int, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Waypoints ``(N, 2)`` m from ``start`` to ``goal`` in env ``e`` of ``world`` (CPU), or None.
 
@@ -232,7 +239,7 @@ class PlannerController(Controller):
         full, rand = self.env_obstacles(world, e)
         grid = None
         if g.planner == "astar":
-            grid = OccupancyGrid.build(rand, g.resolution, base=self._fixed_grid.clearance)
+            grid = self.grid(rand)
         for m in g.margins:
             if g.planner == "astar":
                 path = plan_astar(grid, start, goal, self.radius + m, snap=g.snap)
