@@ -162,16 +162,37 @@ def test_planner_needs_binding_and_errors_are_clear():
         make_controller("reactive", nav=NavConfig.from_dict({"action": {"mode": "discrete"}}))
 
 
-def test_no_path_stops():
-    """A goal walled in: the planner reports no path and the robot stands still (no_path='stop')."""
-    import tempfile
-    from pathlib import Path
+BOXED = "size: [10.0, 10.0]\nwalls:\n  - boundary\n  - [2, 2, 4, 2]\n  - [4, 2, 4, 4]\n  - [4, 4, 2, 4]\n  - [2, 4, 2, 2]\n"
 
-    text = "size: [10.0, 10.0]\nwalls:\n  - boundary\n  - [2, 2, 4, 2]\n  - [4, 2, 4, 4]\n  - [4, 4, 2, 4]\n  - [2, 4, 2, 2]\n"
-    with tempfile.TemporaryDirectory() as d:
-        p = Path(d) / "box.yaml"
-        p.write_text(text)
-        ctrl = make_controller("astar")
-        success, collision, poses = rollout(ctrl, str(p), [[-3.0, -3.0, 0.0]], [[3.0, 3.0]], steps=20)
+
+def test_no_path_stops(tmp_path):
+    """A goal walled in: the planner reports no path and the robot stands still (no_path='stop')."""
+    p = tmp_path / "box.yaml"
+    p.write_text(BOXED)
+    ctrl = make_controller("astar")
+    success, collision, poses = rollout(ctrl, str(p), [[-3.0, -3.0, 0.0]], [[3.0, 3.0]], steps=20)
     assert ctrl.stats["no_path"] == 1 and not success.any() and not collision.any()
     assert torch.allclose(poses[0, -1], poses[0, 0])
+
+
+def test_windowed_grid_matches_full_grid_below_the_window():
+    """Stamping random objects near themselves only equals the full rasterisation where it matters."""
+    env = make_env("street", num_envs=6, seed=2, curriculum={"mode": "off"})
+    env.reset()
+    ctrl = make_controller("astar").bind(env)
+    world = env.state.world.to("cpu")
+    for e in range(6):
+        _, rand = ctrl.env_obstacles(world, e)
+        full = OccupancyGrid.build(rand, 0.1, base=ctrl._fixed_grid.clearance).clearance
+        fast = ctrl.grid(rand).clearance
+        near = full <= 0.5
+        assert np.allclose(full[near], fast[near]) and (fast >= full - 1e-12).all()
+
+
+def test_no_path_go_to_goal_fallback_moves(tmp_path):
+    p = tmp_path / "box.yaml"
+    p.write_text(BOXED)
+    ctrl = make_controller("rrt", no_path="go_to_goal", rrt_max_iters=200)
+    _, _, poses = rollout(ctrl, str(p), [[-3.0, -3.0, 0.0]], [[3.0, 3.0]], steps=20)
+    assert ctrl.stats["no_path"] == 1
+    assert np.hypot(*(poses[0, -1, :2] - torch.tensor([3.0, 3.0])).tolist()) < np.hypot(6.0, 6.0) - 1.0
