@@ -26,7 +26,7 @@ import _common as C
 from torchnav.config import merge
 
 from torchnav.envs import NavEnv
-from torchnav.evaluation import eval_config, format_summary, record_episodes, run_episodes, summarize
+from torchnav.evaluation import bind_policy, eval_config, format_summary, record_episodes, run_episodes, summarize
 from torchnav.policy import Actor, policy_payload, save_policy, to_policy
 
 
@@ -116,6 +116,7 @@ class LineAdapter:
         from torchrl.envs.utils import ExplorationType, set_exploration_type
 
         env = self.make_env(episodes, device, seed)
+        bind_policy(policy, env)
         with EpisodeRecorder(path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1) as rec:
             with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
                 record_rollout(env, policy, max_steps=self.config.max_steps, recorder=rec, stack=False)

@@ -21,7 +21,7 @@ from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from .envs.line_env import LineEnv
-from .evaluation import mean_interval, wilson_interval
+from .evaluation import bind_policy, mean_interval, wilson_interval
 from .tasks.line_config import LineConfig
 
 OUTCOMES = ("lap_complete", "left_line", "stalled", "collision", "timeout")
@@ -53,9 +53,7 @@ def run_line_episodes(
     while done < n_episodes:
         n = min(max_batch, n_episodes - done)
         env = LineEnv(cfg, num_envs=n, device=device, seed=seed + 7919 * chunk)
-        bind = getattr(policy, "bind", None)
-        if callable(bind):
-            bind(env)
+        bind_policy(policy, env)
         for k, v in _until_lap(policy, env, laps).items():
             parts[k].append(v.cpu())
         done += n
