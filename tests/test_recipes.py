@@ -227,3 +227,27 @@ def test_training_bench_runs_seeds_and_tabulates(tmp_path):
     assert 0.0 <= rows[0]["score"] <= 1.0 and rows[0]["command_wall_s"] > 0
     assert json.loads((tmp_path / "t.json").read_text())["rows"][0]["frames"] == 256
     assert "| 3 |" in training.table("ppo_line", rows)
+
+
+SHIPPED = sorted((ROOT / "checkpoints").glob("*.pt"))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_shipped_checkpoints_load_and_drive(path):
+    """Every shipped policy loads, matches its task's observation size and completes short episodes."""
+    from torchnav.policy import load_policy
+
+    assert len(SHIPPED) >= 5
+    sp = load_policy(path)
+    cfg = sp.config()
+    assert sp.extra.get("source"), f"{path.name}: no provenance ('source') recorded"
+    if sp.task == "nav":
+        from torchnav.evaluation import eval_config, run_episodes
+
+        res = run_episodes(sp.policy, eval_config(cfg), 8, seed=1)
+        assert res["success"].sum() >= 4, f"{path.name} reached only {int(res['success'].sum())}/8 goals on {cfg.map}"
+    else:
+        from torchnav.line_evaluation import run_line_episodes
+
+        res = run_line_episodes(sp.policy, cfg, 8, seed=1)
+        assert res["lap_complete"].sum() >= 6, f"{path.name} completed only {int(res['lap_complete'].sum())}/8 laps"
