@@ -38,7 +38,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .math import rotate, safe_hypot
+from .geometry import segment_distance
+from .math import rotate
 
 FLOOR_MODES = ("analog", "binary", "smooth")
 
@@ -119,18 +120,6 @@ class SegmentGrid:
             cell=self.cell, nx=self.nx, ny=self.ny, reach=self.reach,
             cand=self.cand.to(device=device), cand_mask=self.cand_mask.to(device=device),
         )
-
-
-def segment_distance(px: Tensor, py: Tensor, seg: Tensor) -> Tensor:
-    """Distance from points ``(px, py)`` to segments ``seg[..., 4]`` (all broadcast); gradient-safe."""
-    ax, ay, bx, by = seg.unbind(-1)
-    ex, ey = bx - ax, by - ay
-    wx, wy = px - ax, py - ay
-    ee = ex * ex + ey * ey
-    degenerate = ee <= 1e-12
-    t = ((wx * ex + wy * ey) / torch.where(degenerate, torch.ones_like(ee), ee)).clamp(0.0, 1.0)
-    t = torch.where(degenerate, torch.zeros_like(t), t)
-    return safe_hypot(wx - t * ex, wy - t * ey)
 
 
 def nearest_distance_brute(points: Tensor, segments: Tensor) -> Tensor:

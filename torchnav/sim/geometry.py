@@ -26,7 +26,8 @@ def box_segments(boxes: Tensor, box_mask: Tensor) -> tuple[Tensor, Tensor]:
     return seg.reshape(b, -1, 4), box_mask.unsqueeze(-1).expand(*box_mask.shape, 4).reshape(b, -1)
 
 
-def _segment_dist(px: Tensor, py: Tensor, seg: Tensor) -> Tensor:
+def segment_distance(px: Tensor, py: Tensor, seg: Tensor) -> Tensor:
+    """Distance from points ``(px, py)`` to segments ``seg[..., 4]`` (all broadcast); gradient-safe."""
     ax, ay, bx, by = seg.unbind(-1)
     ex, ey = bx - ax, by - ay
     wx, wy = px - ax, py - ay
@@ -52,7 +53,7 @@ def _box_dist(px: Tensor, py: Tensor, box: Tensor) -> Tensor:
 
 def point_segment_distance(p: Tensor, seg: Tensor) -> Tensor:
     """Distance from points ``(B, 2)`` to segments ``(B, S, 4)`` -> ``(B, S)``; safe for zero-length segments."""
-    return _segment_dist(p[:, 0:1], p[:, 1:2], seg)
+    return segment_distance(p[:, 0:1], p[:, 1:2], seg)
 
 
 def point_circle_distance(p: Tensor, circles: Tensor) -> Tensor:
@@ -74,7 +75,7 @@ def points_clearance(points: Tensor, world: World) -> Tensor:
     px, py = points[..., 0:1], points[..., 1:2]  # (B, P, 1)
     best = torch.full_like(points[..., 0], float("inf"))
     for obs, mask, fn in (
-        (world.segments, world.segment_mask, _segment_dist),
+        (world.segments, world.segment_mask, segment_distance),
         (world.circles, world.circle_mask, _circle_dist),
         (world.boxes, world.box_mask, _box_dist),
     ):
