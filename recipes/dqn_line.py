@@ -35,7 +35,7 @@ from torchnav.policy import Actor  # noqa: E402
 
 def main(argv: list[str]) -> dict:
     t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", adapter=LineAdapter)
-    cfg, tc, env, device = t.cfg, t.cfg.train, t.env, t.device
+    tc, env, device = t.cfg.train, t.env, t.device
     if t.task.config.action.mode != "discrete":
         raise C.ConfigError("DQN needs task.action.mode=discrete")
     table = torch.tensor(t.task.config.action.discrete_set, dtype=torch.float32)

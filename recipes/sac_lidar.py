@@ -35,7 +35,7 @@ from torchnav.policy import Actor  # noqa: E402
 
 def main(argv: list[str]) -> dict:
     t = Trainer("sac_lidar", argv, ckpt_format="torchnav-sac-v1")
-    cfg, tc, env, device = t.cfg, t.cfg.train, t.env, t.device
+    tc, env, device = t.cfg.train, t.env, t.device
     if t.task.config.action.mode != "continuous":
         raise C.ConfigError("SAC needs task.action.mode=continuous")
 

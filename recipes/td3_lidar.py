@@ -39,7 +39,7 @@ def make_critic(obs_size: int, act_size: int, hidden) -> ValueOperator:
 
 def main(argv: list[str]) -> dict:
     t = Trainer("td3_lidar", argv, ckpt_format="torchnav-td3-v2")
-    cfg, tc, env, device = t.cfg, t.cfg.train, t.env, t.device
+    tc, env, device = t.cfg.train, t.env, t.device
     if t.task.config.action.mode != "continuous":
         raise C.ConfigError("TD3 needs task.action.mode=continuous")
 

@@ -12,18 +12,18 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
-from torchrl.envs import EnvBase
+from torchrl.data import Bounded, Composite, Unbounded
 
 from ..config import merge, to_dict
 from ..tasks.line import LineState, LineTask
 from ..tasks.line_config import LineConfig
+from .base import BatchedEnv
 
 EPISODE_KEYS = ("return", "length", "progress_m", "lap_fraction", "laps", "lap_time", "time_off_line")
 FLAG_KEYS = ("on_line", "left_line", "stalled", "collision", "lap_completed")
 
 
-class LineEnv(EnvBase):
+class LineEnv(BatchedEnv):
     """Batched line following (see docs/line.md for observation, action and reward).
 
     Outputs of every reset and step: ``observation`` ``(B, H*K [+1])``, ``sensors`` ``(B, K)``
@@ -33,17 +33,14 @@ class LineEnv(EnvBase):
     (:data:`EPISODE_KEYS`), plus ``reward``, ``done``, ``terminated``, ``truncated``.
     """
 
-    _has_dynamic_specs = False
     # For torchnav.record: the flags that say why an episode terminated, in order of precedence.
     end_reasons = ("collision", "left_line", "stalled")
 
     def __init__(self, cfg: LineConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
         cfg = cfg or LineConfig()
-        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        super().__init__(num_envs, device, seed)
         self.cfg = cfg
         self.task = LineTask(cfg, num_envs, device=self.device)
-        self._generator = torch.Generator(device=self.device)
-        self._generator.manual_seed(0 if seed is None else seed)
         self._state: LineState | None = None
         self._make_specs()
 
@@ -54,7 +51,7 @@ class LineEnv(EnvBase):
 
     def _make_specs(self) -> None:
         b, dev, t = self.batch_size, self.device, self.task
-        flag = lambda: Categorical(2, shape=(*b, 1), dtype=torch.bool, device=dev)  # noqa: E731
+        flag = self._flag_spec
         scalar = lambda: Unbounded(shape=(*b, 1), device=dev)  # noqa: E731
         k = t.n_sensors
         ds = self.cfg.distance_sensor
@@ -71,18 +68,9 @@ class LineEnv(EnvBase):
                               shape=b, device=dev),
             shape=b, device=dev,
         )
-        if self.cfg.action.mode == "discrete":
-            n = len(self.cfg.action.discrete_set)
-            self.action_spec = OneHot(n, shape=(*b, n), device=dev)
-        else:
-            self.action_spec = Bounded(-1.0, 1.0, shape=(*b, 2), device=dev)
-        self.reward_spec = Unbounded(shape=(*b, 1), device=dev)
-        self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=b, device=dev)
+        self._make_action_done_specs(self.cfg.action)
 
     # -- TorchRL hooks --------------------------------------------------------------------
-
-    def _set_seed(self, seed: int | None) -> None:
-        self._generator.manual_seed(0 if seed is None else int(seed))
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
@@ -101,13 +89,7 @@ class LineEnv(EnvBase):
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action")
-        if self.cfg.check_actions and not torch.isfinite(action).all():
-            bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
-            raise ValueError(
-                f"LineEnv.step: action contains NaN or inf in envs {bad[:10]}{'...' if len(bad) > 10 else ''}; "
-                "fix the policy, or pass check_actions=False to let the simulator treat them as a stop command"
-            )
+        action = self._checked_action(tensordict)
         self._state, out = self.task.step(self._state, action, self._generator)
         terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
         td = self._outputs(self._state, out["observation"], out["terms"], {f: out[f][:, None] for f in FLAG_KEYS})
@@ -139,23 +121,6 @@ class LineEnv(EnvBase):
         """Static lines for recorded scenes (``torchnav.record``): the track's tape, as segments
         ``(S, 4)`` (m) drawn ``width`` thick in white."""
         return {"track": {"segments": self.track.segments, "thickness": self.track.width, "color": (1.0, 1.0, 1.0, 1.0)}}
-
-    @property
-    def num_envs(self) -> int:
-        return self.batch_size[0]
-
-    @property
-    def state(self) -> LineState | None:
-        """The current task state (read-only use)."""
-        return self._state
-
-    def state_dict(self) -> dict[str, Any]:
-        """RNG state, for checkpoints (episodes in flight are not saved)."""
-        return {"generator": self._generator.get_state()}
-
-    def load_state_dict(self, sd: dict[str, Any]) -> None:
-        if "generator" in sd:
-            self._generator.set_state(sd["generator"])
 
 
 def make_line_env(track: str = "course", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> LineEnv:

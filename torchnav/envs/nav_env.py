@@ -12,26 +12,22 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
-from torchrl.envs import EnvBase
+from torchrl.data import Bounded, Composite, Unbounded
 
 from ..config import merge, to_dict
 from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes
+from .base import BatchedEnv
 
 
-class NavEnv(EnvBase):
+class NavEnv(BatchedEnv):
     """Batched lidar navigation (see docs/tasks.md for observation, action and reward)."""
-
-    _has_dynamic_specs = False
 
     def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
         cfg = cfg or NavConfig()
-        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        super().__init__(num_envs, device, seed)
         self.cfg = cfg
         self.task = NavTask(cfg, num_envs, device=self.device)
         self.curriculum = CurriculumState.initial(cfg.curriculum, device=self.device)
-        self._generator = torch.Generator(device=self.device)
-        self._generator.manual_seed(0 if seed is None else seed)
         self._state: NavState | None = None
         self._make_specs()
 
@@ -39,7 +35,7 @@ class NavEnv(EnvBase):
 
     def _make_specs(self) -> None:
         b, dev, t = self.batch_size, self.device, self.task
-        flag = lambda: Categorical(2, shape=(*b, 1), dtype=torch.bool, device=dev)  # noqa: E731
+        flag = self._flag_spec
         scalar = lambda: Unbounded(shape=(*b, 1), device=dev)  # noqa: E731
         lidar = self.cfg.lidar
         self.observation_spec = Composite(
@@ -58,17 +54,9 @@ class NavEnv(EnvBase):
             ),
             shape=b, device=dev,
         )
-        if self.cfg.action.mode == "discrete":
-            self.action_spec = OneHot(len(self.cfg.action.discrete_set), shape=(*b, len(self.cfg.action.discrete_set)), device=dev)
-        else:
-            self.action_spec = Bounded(-1.0, 1.0, shape=(*b, 2), device=dev)
-        self.reward_spec = Unbounded(shape=(*b, 1), device=dev)
-        self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=b, device=dev)
+        self._make_action_done_specs(self.cfg.action)
 
     # -- TorchRL hooks ------------------------------------------------------------------
-
-    def _set_seed(self, seed: int | None) -> None:
-        self._generator.manual_seed(0 if seed is None else int(seed))
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
@@ -86,13 +74,7 @@ class NavEnv(EnvBase):
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action")
-        if self.cfg.check_actions and not torch.isfinite(action).all():
-            bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
-            raise ValueError(
-                f"NavEnv.step: action contains NaN or inf in envs {bad[:10]}{'...' if len(bad) > 10 else ''}; "
-                "fix the policy, or pass check_actions=False to let the simulator treat them as a stop command"
-            )
+        action = self._checked_action(tensordict)
         self._state, out = self.task.step(self._state, action, self._generator)
         terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
         self.curriculum = after_episodes(self.curriculum, self.cfg.curriculum, (terminated | truncated)[:, 0], out["success"])
@@ -121,23 +103,13 @@ class NavEnv(EnvBase):
 
     # -- state for checkpoints and recording ------------------------------------------------
 
-    @property
-    def num_envs(self) -> int:
-        return self.batch_size[0]
-
-    @property
-    def state(self) -> NavState | None:
-        """The current task state (read-only use: world, goals, poses of every env)."""
-        return self._state
-
     def state_dict(self) -> dict[str, Any]:
         """Curriculum and RNG state, for checkpoints (episodes in flight are not saved)."""
-        return {"curriculum": self.curriculum.state_dict(), "generator": self._generator.get_state()}
+        return {"curriculum": self.curriculum.state_dict(), **super().state_dict()}
 
     def load_state_dict(self, sd: dict[str, Any]) -> None:
         self.curriculum.load_state_dict(sd["curriculum"])
-        if "generator" in sd:
-            self._generator.set_state(sd["generator"])
+        super().load_state_dict(sd)
 
 
 def make_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
