@@ -113,6 +113,41 @@ def make_world(
     )
 
 
+_KIND_MASKS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
+
+
+def pad_world(world: World, segments: int | None = None, circles: int | None = None, boxes: int | None = None) -> World:
+    """``world`` with each obstacle kind padded to at least the given number of slots.
+
+    New slots hold zeros and are masked off, so collision and lidar ignore them.
+    ``None`` keeps a kind's slot count.
+    """
+    want = {"segments": segments, "circles": circles, "boxes": boxes}
+    out = {}
+    for key, mkey, width in _KIND_MASKS:
+        t, m = getattr(world, key), getattr(world, mkey)
+        extra = max(0, (want[key] or 0) - t.shape[1])
+        if extra:
+            t = torch.cat((t, t.new_zeros(t.shape[0], extra, width)), 1)
+            m = torch.cat((m, m.new_zeros(m.shape[0], extra)), 1)
+        out[key], out[mkey] = t, m
+    return World(**out, batch_size=world.batch_size, device=world.device)
+
+
+def cat_worlds(worlds: Sequence[World]) -> World:
+    """Concatenate worlds along the batch, padding each kind to the largest slot count.
+
+    Envs of one batch may so hold different worlds: ``cat_worlds([arena, maze])``
+    is a batch of ``len(arena) + len(maze)`` envs.
+    """
+    if not worlds:
+        raise ValueError("cat_worlds needs at least one world")
+    n = {key: max(getattr(w, key).shape[1] for w in worlds) for key, _, _ in _KIND_MASKS}
+    padded = [pad_world(w, **n) for w in worlds]
+    out = {k: torch.cat([getattr(w, k) for w in padded], 0) for key, mkey, _ in _KIND_MASKS for k in (key, mkey)}
+    return World(**out, batch_size=[sum(w.batch_size[0] for w in worlds)], device=worlds[0].device)
+
+
 def check_world(world: World, batch_size: int, dtype: torch.dtype, device: torch.device) -> None:
     """Raise a ValueError naming the field whose shape, dtype or device is off."""
     specs = {

@@ -1,0 +1,31 @@
+"""pad_world / cat_worlds: envs of one batch holding different worlds."""
+
+import torch
+
+from torchnav.maps import load_map
+from torchnav.sim import cat_worlds, lidar_scan, pad_world, points_clearance
+from torchnav.sim.params import LidarParams
+
+
+def test_pad_world_adds_masked_slots_and_changes_nothing_seen():
+    w = load_map("arena").build_world(3)
+    p = pad_world(w, segments=10, circles=7, boxes=9)
+    assert p.segments.shape == (3, 10, 4) and p.circles.shape == (3, 7, 3) and p.boxes.shape[1] == 9
+    assert not p.segment_mask[:, w.segments.shape[1]:].any()
+    pose = torch.tensor([[0.3, -1.0, 0.4]] * 3)
+    lidar = LidarParams(n_rays=36)
+    assert torch.equal(lidar_scan(pose, p, lidar), lidar_scan(pose, w, lidar))
+    pts = torch.rand(3, 50, 2) * 8 - 4
+    assert torch.equal(points_clearance(pts, p), points_clearance(pts, w))
+
+
+def test_cat_worlds_keeps_each_env_its_own_world():
+    a, m = load_map("arena").build_world(2), load_map("maze").build_world(3)
+    w = cat_worlds([a, m])
+    assert w.batch_size == torch.Size([5])
+    pose = torch.tensor([[0.5, 0.5, 0.0]] * 5)
+    lidar = LidarParams(n_rays=90, fov=6.283185307179586)
+    both = lidar_scan(pose, w, lidar)
+    assert torch.equal(both[:2], lidar_scan(pose[:2], a, lidar))
+    assert torch.equal(both[2:], lidar_scan(pose[2:], m, lidar))
+    assert not torch.equal(both[0], both[2])
