@@ -60,3 +60,15 @@ def test_bench_scripts_quick_json():
     (ratio,) = [r for r in env if r.get("bench") == "env_ratio"]
     assert _positive(ratio["collector_over_raw"]) and _positive(ratio["env_step_over_raw"])
     assert "collector / raw-sim" in env_log
+
+
+def test_dense_lidar_quick_json():
+    cmd = [sys.executable, str(ROOT / "bench" / "dense_lidar.py"), "--quick", "--json", "--threads", "1"]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    rows = {r["load"]: r for r in _json_lines(p.stdout)}
+    assert set(rows) == {"standard", "dense-sectors", "dense-rays", "dense-brute"}
+    assert rows["standard"]["obstacles"] == 12 and rows["dense-sectors"]["obstacles"] == 404
+    assert all(_positive(r["env_steps_per_s"]) and r["mode"] == "eager" for r in rows.values())
+    assert 0.0 <= rows["dense-rays"]["exact_envs_frac"] <= 1.0
+    assert "standard / dense-sectors" in p.stderr  # the ratios went to stderr

@@ -208,3 +208,14 @@ def test_odometry_noise_drifts_reproducibly():
     assert float(drift[:, :2].max()) > 1e-3 and float(drift[:, 2].max()) > 1e-3
     assert torch.equal(a.odom, b.odom)  # same seed, same drift
     assert not torch.equal(a.odom, c.odom)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_wrap_angle_never_returns_plus_pi(dtype):
+    from torchnav.sim import wrap_angle
+
+    eps = torch.finfo(dtype).eps
+    a = torch.tensor([-math.pi, math.pi, -math.pi - eps, -math.pi * (1 + eps), 3 * math.pi, -3 * math.pi], dtype=dtype)
+    a = torch.cat((a, torch.nextafter(a, torch.full_like(a, -10.0)), torch.rand(10_000, dtype=dtype) * 200 - 100))
+    w = wrap_angle(a)
+    assert (w >= -math.pi).all() and (w < math.pi).all()

@@ -208,3 +208,35 @@ def test_scan_with_only_one_kind_and_half_fov():
         for unroll in (True, False):
             got = lidar_scan(pose, world, lidar, unroll=unroll)
             torch.testing.assert_close(got, torch.tensor(naive_scan(pose, world, lidar), dtype=F64), atol=1e-9, rtol=0)
+
+
+# --------------------------------------------------------------------------- precision and degenerate cases
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, F64], ids=["f32", "f64"])
+@pytest.mark.parametrize("wall", [[1.0, 0.0, 3.0, 0.0], [3.0, 0.0, 1.0, 0.0], [0.7, 0.35, 2.3, 1.15]])
+def test_ray_along_a_walls_line_misses_it(wall, dtype):
+    # From the origin on the wall's line: looking away from it, and looking along it through it.
+    # Both are parallel rays and miss; the parallel test is relative to the wall's length and
+    # to the dtype's precision (an absolute 1e-9 read 0 m in float32).
+    th = math.atan2(wall[3] - wall[1], wall[2] - wall[0])
+    if wall[2] < wall[0]:
+        th += math.pi
+    for heading in (th + math.pi, th):
+        assert float(scan([0.0, 0.0, heading], dtype=dtype, segments=[wall])) == 10.0
+    # From the wall's own end point, looking away along its line.
+    x1, y1, x2, y2 = wall
+    assert float(scan([x1, y1, math.atan2(y1 - y2, x1 - x2)], dtype=dtype, segments=[wall])) == 10.0
+
+
+def test_zero_size_box_is_invisible_but_a_zero_width_box_is_a_wall():
+    assert float(scan([0, 0, math.pi / 4], boxes=[[1.0, 1.0, 0.0, 0.0, 0.0]])) == 10.0  # a ray right through it
+    assert float(scan([0, 0, 0], boxes=[[2.0, 0.0, 0.0, 0.5, 0.0]])) == pytest.approx(2.0)
+
+
+def test_far_circle_is_precise_in_float32():
+    circle = [[5000.0, 0.5, 1.0]]
+    want = 5000.0 - math.sqrt(1.0 - 0.25)  # the half chord, 0.87 m, is lost in b^2 - c at 5 km
+    far = LidarParams(n_rays=1, fov=0.1, max_range=6000.0)
+    assert float(scan([0, 0, 0], far, dtype=torch.float32, circles=circle)) == pytest.approx(want, abs=2e-3)
+    assert float(scan([0, 0, 0], far, dtype=F64, circles=circle)) == pytest.approx(want, abs=1e-9)

@@ -6,7 +6,7 @@ Nothing here knows about tasks, rewards or TorchRL.
 from .floor import FloorSensorParams, band_coverage, build_segment_grid, floor_readings, nearest_distance, sensor_points
 from .geometry import box_corners, disc_clearance, points_clearance, point_box_distance, point_circle_distance, point_segment_distance
 from .kinematics import apply_limits, integrate, integrate_euler, integrate_exact, unicycle_to_wheels, wheels_to_unicycle
-from .lidar import cast_rays, hit_box, hit_circle, hit_segment, lidar_scan, ray_origins_and_angles, sectorize
+from .lidar import cast_rays, hit_box, hit_circle, hit_segment, lidar_fan, lidar_scan, ray_origins_and_angles, scan_is_exact, sectorize
 from .math import safe_hypot, safe_norm, safe_sinc, wrap_angle
 from .params import LidarParams, SimParams
 from .state import SimState, World, cat_worlds, check_world, init_state, make_world, pad_world
@@ -14,7 +14,7 @@ from .step import check_action, step
 
 __all__ = [
     "LidarParams", "SimParams", "SimState", "World", "make_world", "pad_world", "cat_worlds", "init_state", "check_world",
-    "step", "check_action", "lidar_scan", "cast_rays", "hit_segment", "hit_circle", "hit_box", "sectorize", "ray_origins_and_angles", "disc_clearance",
+    "step", "check_action", "lidar_scan", "lidar_fan", "scan_is_exact", "cast_rays", "hit_segment", "hit_circle", "hit_box", "sectorize", "ray_origins_and_angles", "disc_clearance",
     "point_segment_distance", "points_clearance", "point_circle_distance", "point_box_distance", "box_corners",
     "integrate", "integrate_euler", "integrate_exact", "apply_limits", "wheels_to_unicycle",
     "unicycle_to_wheels", "wrap_angle", "safe_norm", "safe_hypot", "safe_sinc",

@@ -19,7 +19,9 @@ TWO_PI = 2.0 * math.pi
 
 def wrap_angle(a: Tensor) -> Tensor:
     """Wrap angles (radians) to [-pi, pi). Gradient is 1 everywhere."""
-    return torch.remainder(a + math.pi, TWO_PI) - math.pi
+    w = torch.remainder(a + math.pi, TWO_PI) - math.pi
+    # remainder can round up to exactly 2 pi (a just below -pi), which would give +pi.
+    return torch.where(w >= math.pi, w - TWO_PI, w)
 
 
 def safe_norm(x: Tensor, dim: int = -1, eps: float = 1e-12) -> Tensor:

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 INTEGRATORS = ("euler", "exact")
+SCANS = ("rays", "sectors")
 
 
 def _require(cond: bool, msg: str) -> None:
@@ -21,6 +22,15 @@ class LidarParams:
     frame for a partial field of view (so ray 0 looks to the right, the last ray to
     the left, counter-clockwise order), and ``-pi + i * 2*pi / n_rays`` for a full
     360-degree field of view (ray 0 looks backwards, ray ``n_rays/2`` straight ahead).
+
+    With ``scan="sectors"`` each of the ``n_rays`` readings is a sector instead: the
+    field of view is cut into ``n_rays`` equal wedges (sector 0 on the right, or
+    behind for a full circle) and each reads the distance to the nearest obstacle
+    point inside its wedge, what infinitely dense rays min-pooled per wedge would read.
+
+    ``window`` and ``dense_slots`` tune the broad phase for worlds with many obstacles
+    (``torchnav/sim/raycast.py``); they never change a reading while an env has at
+    most ``dense_slots`` obstacles of a kind that look wider than the window.
     """
 
     n_rays: int = 20  # number of raw rays
@@ -30,6 +40,9 @@ class LidarParams:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose in the robot frame: x m, y m, yaw rad
     n_sectors: int | None = None  # if set, ``sectorize`` bins the rays into this many sectors by their minimum
     noise_std: float = 0.0  # m, std of additive Gaussian range noise (needs a generator)
+    scan: str = "rays"  # "rays": one reading per ray; "sectors": exact nearest distance per wedge
+    window: int = 2  # broad phase: each obstacle is tested on the 2 * window + 1 rays nearest its direction
+    dense_slots: int = 16  # broad phase: per kind, this many widest obstacles are tested on every ray
 
     def __post_init__(self) -> None:
         _require(isinstance(self.n_rays, int) and self.n_rays >= 1, f"lidar.n_rays must be a positive int, got {self.n_rays!r}")
@@ -37,6 +50,9 @@ class LidarParams:
         _require(0.0 <= self.min_range < self.max_range, f"lidar needs 0 <= min_range < max_range, got {self.min_range!r}, {self.max_range!r}")
         _require(len(self.offset) == 3, f"lidar.offset must be (x, y, yaw), got {self.offset!r}")
         _require(self.noise_std >= 0.0, f"lidar.noise_std must be >= 0, got {self.noise_std!r}")
+        _require(self.scan in SCANS, f"lidar.scan must be one of {SCANS}, got {self.scan!r}")
+        _require(isinstance(self.window, int) and self.window >= 0, f"lidar.window must be an int >= 0, got {self.window!r}")
+        _require(isinstance(self.dense_slots, int) and self.dense_slots >= 1, f"lidar.dense_slots must be an int >= 1, got {self.dense_slots!r}")
         if self.n_sectors is not None:
             _require(
                 isinstance(self.n_sectors, int) and self.n_sectors >= 1 and self.n_rays % self.n_sectors == 0,

@@ -1,0 +1,176 @@
+"""Dense worlds: simulator env-steps/s with 400 obstacles per env, next to the standard load.
+
+Loads (per env, random and different in every env; one robot, random twists):
+
+* ``standard``      the load of ``bench/sim_throughput.py``: 10 x 10 m arena, 4 walls +
+                    4 boxes + 4 circles, 20 rays over 180 degrees, 10 m range;
+* ``dense-sectors`` a 20 x 20 m walled room with 300 posts (circles, radius 0.05-0.3 m)
+                    and 100 boxes (0.2-0.8 m sides), the exact sector scan with 20
+                    sectors over 360 degrees, 10 m range;
+* ``dense-rays``    the same worlds, 180 rays over 360 degrees (2-degree spacing);
+* ``dense-brute``   dense-rays with the broad phase off (every ray against every
+                    obstacle), as every version before the broad phase ran it.
+
+Each load runs ``torchnav.sim.step`` eager and compiled (``torch.compile``); compile
+time is excluded from the rates. The table ends with the ratios measured in this
+run: each dense load against the standard load, and the broad phase against brute
+force. For the dense ray loads it also prints how many envs' scans the broad phase
+gives exactly (``scan_is_exact``).
+
+    python bench/dense_lidar.py                  # 4,096 envs, eager and compiled
+    python bench/dense_lidar.py --quick          # a seconds-long smoke run (64 envs, eager)
+    python bench/dense_lidar.py --num-envs 1024 --modes compiled --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402  (sets TORCHINDUCTOR_COMPILE_THREADS before torch is imported)
+
+import torch  # noqa: E402
+from sim_throughput import make_load  # noqa: E402
+
+from torchnav.sim import LidarParams, SimParams, World, disc_clearance, init_state, make_world, scan_is_exact, step  # noqa: E402
+
+HALF = 10.0  # m: the dense room spans [-10, 10] x [-10, 10]
+N_POSTS, N_BOXES = 300, 100
+LOADS = {
+    "standard": LidarParams(n_rays=20, fov=math.pi, max_range=10.0),
+    "dense-sectors": LidarParams(n_rays=20, fov=2 * math.pi, max_range=10.0, scan="sectors"),
+    "dense-rays": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0),
+    "dense-brute": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0, dense_slots=10**9),
+}
+TARGET_DENSE = 250_000  # env-steps/s at 4,096 envs, compiled, 2 CPU threads
+TARGET_RATIO = 10.0  # the dense load within 10x of the standard load
+
+
+def make_dense(num_envs: int, params: SimParams, seed: int = 0) -> tuple[Any, World, list[torch.Tensor]]:
+    """Initial state, per-env random dense world and a few batches of random actions."""
+    g = torch.Generator().manual_seed(seed)
+    b, h = num_envs, HALF
+
+    def u(lo: float, hi: float, *shape: int) -> torch.Tensor:
+        return lo + (hi - lo) * torch.rand(*shape, generator=g)
+
+    base = make_world(b, segments=[[-h, -h, h, -h], [h, -h, h, h], [h, h, -h, h], [-h, h, -h, -h]])
+    posts = torch.stack((u(-h, h, b, N_POSTS), u(-h, h, b, N_POSTS), u(0.05, 0.3, b, N_POSTS)), -1)
+    boxes = torch.stack((u(-h, h, b, N_BOXES), u(-h, h, b, N_BOXES), u(0.1, 0.4, b, N_BOXES), u(0.1, 0.4, b, N_BOXES), u(-math.pi, math.pi, b, N_BOXES)), -1)
+    world = World(
+        segments=base.segments, segment_mask=base.segment_mask,
+        circles=posts, circle_mask=torch.ones(b, N_POSTS, dtype=torch.bool),
+        boxes=boxes, box_mask=torch.ones(b, N_BOXES, dtype=torch.bool), batch_size=[b],
+    )
+    pose = torch.stack((u(-h, h, b), u(-h, h, b), u(-math.pi, math.pi, b)), -1)
+    for _ in range(500):  # start poses in free space, all envs at once
+        bad = (disc_clearance(pose, world, params.robot_radius) <= 0.05) | (pose[:, :2].abs().amax(-1) > h - 0.3)
+        n = int(bad.sum())
+        if n == 0:
+            break
+        pose[bad] = torch.stack((u(-h, h, n), u(-h, h, n), u(-math.pi, math.pi, n)), -1)
+    else:
+        raise RuntimeError("could not place every robot in free space")
+    actions = [torch.stack((u(params.v_min, params.v_max, b), u(-params.omega_max, params.omega_max, b)), -1) for _ in range(8)]
+    return init_state(pose, world, params), world, actions
+
+
+def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) -> dict[str, Any]:
+    params = replace(SimParams(), lidar=LOADS[load])
+    state, world, actions = make_load(num_envs, "cpu", args.seed, params) if load == "standard" else make_dense(num_envs, params, args.seed)
+    rec: dict[str, Any] = {"bench": "dense_lidar", "load": load, "mode": mode, "num_envs": num_envs, "obstacles": int(world.segment_mask[0].sum() + world.circle_mask[0].sum() + world.box_mask[0].sum()),
+                           "readings": params.lidar.n_rays, "scan": params.lidar.scan, "compile_s": None}
+
+    def fn(s, a):
+        return step(s, a, world, params)
+
+    if mode == "compiled":
+        torch._dynamo.reset()
+        fn = torch.compile(fn)
+    box = {"s": state, "i": 0}
+
+    def call() -> None:
+        box["s"] = fn(box["s"], actions[box["i"] % len(actions)])
+        box["i"] += 1
+
+    t0 = time.perf_counter()
+    call()
+    if mode == "compiled":
+        rec["compile_s"] = round(time.perf_counter() - t0, 1)
+    for _ in range(args.warmup):
+        call()
+    steps = args.steps or common.calibrate(call, "cpu", args.run_seconds, lo=2, hi=10_000)
+    t = common.time_calls(call, items_per_call=num_envs, steps=steps, repeats=args.repeats, warmup=0, device="cpu")
+    rec.update(env_steps_per_s=round(t.median, 1), env_steps_per_s_min=round(t.min, 1), env_steps_per_s_max=round(t.max, 1), step_ms=round(t.call_us / 1000, 3))
+    if load.startswith("dense-rays"):
+        rec["exact_envs_frac"] = float(scan_is_exact(box["s"].pose, world, params.lidar).float().mean())
+    return rec
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--num-envs", type=int, default=4096)
+    p.add_argument("--loads", type=lambda s: s.split(","), default=list(LOADS), help=f"comma-separated, from {','.join(LOADS)}")
+    p.add_argument("--modes", type=lambda s: s.split(","), default=["eager", "compiled"], help="eager, compiled")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--steps", type=int, default=0, help="steps per timed run (default: calibrated to --run-seconds)")
+    p.add_argument("--run-seconds", type=float, default=1.0)
+    p.add_argument("--repeats", type=int, default=5)
+    p.add_argument("--warmup", type=int, default=3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="also print one JSON object per line")
+    p.add_argument("--quick", action="store_true", help="64 envs, eager, few steps: a smoke test")
+    args = p.parse_args(argv)
+    if args.quick:
+        args.num_envs, args.modes, args.steps, args.repeats, args.warmup = 64, ["eager"], 3, 2, 1
+    bad = [x for x in args.loads if x not in LOADS] + [m for m in args.modes if m not in ("eager", "compiled")]
+    if bad:
+        p.error(f"unknown load or mode {bad}")
+    return args
+
+
+def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
+    args = parse_args(argv)
+    common.set_threads(args.threads)
+    log = sys.stderr if args.json else sys.stdout
+    info = common.machine_info("cpu")
+    print(f"== dense_lidar: {args.num_envs} envs on cpu, " + ", ".join(f"{k}={v}" for k, v in info.items()), file=log)
+    warn = common.load_warning("cpu")
+    if warn:
+        print(warn, file=log)
+    records = []
+    for load in args.loads:
+        for mode in args.modes:
+            rec = bench_load(load, mode, args.num_envs, args)
+            records.append(rec)
+            if args.json:
+                common.emit_json(rec)
+            print(f"   {load:>14} {mode:>8}: {common.human_rate(rec['env_steps_per_s'])} env-steps/s", file=sys.stderr, flush=True)
+    rows = [[r["load"], r["mode"], r["obstacles"], f"{r['readings']} {r['scan']}", common.human_rate(r["env_steps_per_s"]), common.human_rate(r["env_steps_per_s_min"]),
+             common.human_rate(r["env_steps_per_s_max"]), f"{r['step_ms']:.2f}", r["compile_s"] if r["compile_s"] is not None else "-",
+             f"{r['exact_envs_frac']:.1%}" if "exact_envs_frac" in r else "-"] for r in records]
+    print(file=log)
+    common.print_table(["load", "mode", "obstacles", "lidar", "env-steps/s", "min", "max", "ms/step", "compile s", "exact envs"], rows, file=log)
+    rate = {(r["load"], r["mode"]): r["env_steps_per_s"] for r in records}
+    print("\n   ratios (same run):", file=log)
+    for mode in args.modes:
+        std = rate.get(("standard", mode))
+        for load in ("dense-sectors", "dense-rays"):
+            if std and (load, mode) in rate:
+                print(f"   {mode:>8}: standard / {load} = x{std / rate[(load, mode)]:.1f} (target <= x{TARGET_RATIO:g})", file=log)
+        if ("dense-brute", mode) in rate and ("dense-rays", mode) in rate:
+            print(f"   {mode:>8}: dense-rays broad phase / brute force = x{rate[('dense-rays', mode)] / rate[('dense-brute', mode)]:.1f}", file=log)
+        if ("dense-sectors", mode) in rate and mode == "compiled":
+            r = rate[("dense-sectors", mode)]
+            print(f"   {mode:>8}: dense-sectors {common.human_rate(r)} env-steps/s = x{r / TARGET_DENSE:.2f} of the {common.human_rate(TARGET_DENSE)} target", file=log)
+    return records
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,267 @@
+"""Exact 2D ray casting against segments, circles and oriented boxes, with an angular broad phase.
+
+Each obstacle kind has one hit function written on broadcastable tensors. Two
+narrow-phase reductions test every ray against every slot of a kind:
+
+* ``batched``: all rays of all envs against all slots at once, as ``(B, R, N)``
+  tensors reduced by a minimum (fewest kernel launches in eager mode);
+* ``unrolled``: a running minimum over the slots, each a ``(B, R)`` pass. Under
+  ``torch.compile`` this fuses into one loop over contiguous memory and never
+  materialises ``(B, R, N)`` temporaries (see docs/performance.md).
+
+For worlds with many obstacles, :func:`cast_fan` adds a broad phase for evenly
+spaced rays (a lidar fan): an obstacle can only be hit by the rays that pass
+through its bounding circle, which from the sensor spans ``phi +- asin(rho/D)``.
+Each obstacle is tested on the ``2 * window + 1`` rays nearest its direction, and
+the results are scattered into the scan by a minimum. Obstacles that look too wide
+for that window (near or large ones) go to a small dense set of ``dense_slots``
+per env and kind, tested against every ray. The scan equals the
+every-ray-every-slot scan whenever an env has at most ``dense_slots`` wide
+obstacles of a kind; :func:`fan_is_exact` says where that holds. Selection is not
+differentiated; gradients flow through the narrow phase as before.
+
+Every division and square root is guarded (see ``math.py``) and masking uses
+``torch.where`` out of place, so backward never meets inf or NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from .math import safe_hypot, wrap_angle
+from .state import World
+
+_INF = float("inf")
+_TINY = 1e-12
+# A ray whose cross product with a wall is below this many float epsilons times the
+# wall's length is parallel to it (rounding alone makes |d x e| that large).
+_PARALLEL_EPS = 8.0
+
+
+def hit_segment(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, seg: Tensor, mask: Tensor) -> Tensor:
+    """Distance along unit rays to segments ``[x1, y1, x2, y2]``, ``inf`` where missed.
+
+    All arguments broadcast: ray origin ``ox, oy``, unit direction ``dx, dy``, and the
+    segment's components in ``seg[..., k]`` with a bool ``mask``. Rays parallel to a
+    segment, up to rounding relative to its length, miss it; so do zero-length segments.
+    """
+    ax, ay, bx, by = seg.unbind(-1)
+    ex, ey = bx - ax, by - ay
+    wx, wy = ax - ox, ay - oy
+    # Solve o + t d = a + s e with 2D cross products.
+    denom = dx * ey - dy * ex
+    tol = _PARALLEL_EPS * torch.finfo(denom.dtype).eps
+    ok = denom * denom > (tol * tol) * (ex * ex + ey * ey)
+    inv = 1.0 / torch.where(ok, denom, torch.ones_like(denom))
+    t = (wx * ey - wy * ex) * inv
+    s = (wx * dy - wy * dx) * inv
+    return torch.where(ok & (t >= 0) & (s >= 0) & (s <= 1) & mask, t, _INF)
+
+
+def hit_circle(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, circ: Tensor, mask: Tensor) -> Tensor:
+    """Distance along unit rays to circles ``[cx, cy, r]``, ``inf`` where missed (broadcasting).
+
+    A ray starting inside a circle reports the exit point. Tangent rays and circles of
+    radius 0 miss. The half chord is computed as ``(r - h)(r + h)`` with ``h`` the
+    ray line's distance from the centre (a cross product), which keeps float32 precise
+    far from the circle.
+    """
+    cx, cy, r = circ.unbind(-1)
+    fx, fy = ox - cx, oy - cy
+    b = fx * dx + fy * dy
+    h = (fx * dy - fy * dx).abs()
+    disc = (r - h) * (r + h)
+    ok = disc > 0
+    sq = torch.sqrt(torch.where(ok, disc, torch.ones_like(disc)))
+    t_in, t_out = -b - sq, -b + sq
+    t = torch.where(t_in >= 0, t_in, t_out)
+    return torch.where(ok & (t >= 0) & mask, t, _INF)
+
+
+def hit_box(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, box: Tensor, mask: Tensor) -> Tensor:
+    """Distance along unit rays to oriented boxes ``[cx, cy, hx, hy, yaw]``, ``inf`` where missed.
+
+    The slab method in the box frame. A ray parallel to a slab gets a tiny
+    stand-in direction, which turns that slab's entry and exit into huge numbers
+    of the right signs, exactly what +-inf would do, but finite for backward.
+    A ray starting inside a box reports the exit point. A box with both half
+    extents 0 is invisible; one with a single zero half extent is a thin wall.
+    """
+    cx, cy, hx, hy, yaw = box.unbind(-1)
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    px, py = ox - cx, oy - cy
+    lox, loy = c * px + s * py, c * py - s * px
+    ldx, ldy = c * dx + s * dy, c * dy - s * dx
+    ix = 1.0 / torch.where(ldx.abs() > _TINY, ldx, torch.full_like(ldx, _TINY))
+    iy = 1.0 / torch.where(ldy.abs() > _TINY, ldy, torch.full_like(ldy, _TINY))
+    tx1, tx2 = (-hx - lox) * ix, (hx - lox) * ix
+    ty1, ty2 = (-hy - loy) * iy, (hy - loy) * iy
+    t_near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
+    t_far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
+    t = torch.where(t_near >= 0, t_near, t_far)
+    visible = mask & ((hx > 0) | (hy > 0))
+    return torch.where((t_near <= t_far) & (t_far >= 0) & visible, t, _INF)
+
+
+KINDS = (("segments", "segment_mask", hit_segment), ("circles", "circle_mask", hit_circle), ("boxes", "box_mask", hit_box))
+
+
+def bounding_circles(key: str, obs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Centre ``x, y`` and radius (m) of a circle around each obstacle of kind ``key``, each ``obs.shape[:-1]``."""
+    if key == "segments":
+        ax, ay, bx, by = obs.unbind(-1)
+        return 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * torch.hypot(bx - ax, by - ay)
+    if key == "circles":
+        return obs.unbind(-1)
+    cx, cy, hx, hy, _ = obs.unbind(-1)
+    return cx, cy, torch.hypot(hx, hy)
+
+
+def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask: Tensor, fn, unroll: bool) -> Tensor:
+    """Every ray ``(B, R)`` against every slot ``(B, N, w)`` of one kind -> nearest hit ``(B, R)``."""
+    if unroll:
+        best = torch.full_like(dx, _INF)
+        for i in range(obs.shape[1]):
+            best = torch.minimum(best, fn(ox, oy, dx, dy, obs[:, i].unsqueeze(1), mask[:, i : i + 1]))
+        return best
+    hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), dx.unsqueeze(-1), dy.unsqueeze(-1), obs.unsqueeze(1), mask.unsqueeze(1))
+    return hits.amin(-1)
+
+
+def _auto_unroll(world: World) -> bool:
+    return sum(getattr(world, k).shape[1] for k, _, _ in KINDS) <= 32
+
+
+def cast_rays(origin: Tensor, angles: Tensor, world: World, unroll: bool | None = None) -> Tensor:
+    """Nearest hit distance ``(B, R)`` of rays from ``origin`` ``(B, 2)`` at world ``angles`` ``(B, R)``;
+    ``inf`` where a ray hits nothing. Every ray against every slot (no broad phase).
+
+    ``unroll`` picks the reduction (see the module docstring); ``None`` unrolls when
+    the world has at most 32 obstacle slots.
+    """
+    unroll = _auto_unroll(world) if unroll is None else unroll
+    dx, dy = torch.cos(angles), torch.sin(angles)
+    ox, oy = origin[:, 0:1], origin[:, 1:2]  # (B, 1)
+    best = torch.full_like(dx, _INF)
+    for key, mkey, fn in KINDS:
+        obs, mask = getattr(world, key), getattr(world, mkey)
+        if obs.shape[1]:
+            best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, unroll))
+    return best
+
+
+@dataclass(frozen=True)
+class RayFan:
+    """Evenly spaced rays from one origin per env.
+
+    Ray ``i`` points at ``first + i * spacing`` (rad, world frame); ``angles`` holds
+    those directions as computed by the caller. A ``closed`` fan covers the full
+    circle (``n * spacing = 2 pi``), so ray indices wrap around.
+    """
+
+    origin: Tensor  # (B, 2) m
+    angles: Tensor  # (B, n) rad, world frame
+    first: Tensor  # (B,) rad, direction of ray 0
+    spacing: float  # rad between neighbouring rays
+    closed: bool
+
+    @property
+    def n(self) -> int:
+        return self.angles.shape[1]
+
+    def index_of(self, phi: Tensor) -> Tensor:
+        """Fractional ray index of world directions ``phi`` ``(B, ...)``: ray ``i`` lies at
+        index ``i``. For a closed fan the index is not wrapped; reduce integer indices modulo ``n``."""
+        first = self.first.reshape(-1, *([1] * (phi.dim() - 1)))
+        if self.closed:
+            return (phi - first) / self.spacing
+        half = 0.5 * (self.n - 1) * self.spacing  # the fan's middle ray
+        d = phi - first - half
+        d = d - (2 * math.pi) * torch.round(d / (2 * math.pi))  # into [-pi, pi] around the middle
+        return (d + half) / self.spacing
+
+
+def _window_and_wide(fan: RayFan, key: str, obs: Tensor, mask: Tensor, window: int) -> tuple[Tensor, Tensor]:
+    """Fractional ray index ``(B, N)`` of each obstacle's bounding-circle centre, and whether the
+    obstacle may reach rays outside its window of ``2 * window + 1`` rays (bool ``(B, N)``).
+
+    The rays just outside the window lie at least ``(window + 1/2) * spacing`` from the
+    centre's direction; an obstacle is safe when its bounding circle's half angle
+    ``asin(rho / D)`` is below that (compared as ``rho^2 < D^2 sin^2``, no asin; the
+    1e-3 margin absorbs rounding in the angles). Masked slots are never wide.
+    """
+    cx, cy, rho = bounding_circles(key, obs)
+    rx, ry = cx - fan.origin[:, 0:1], cy - fan.origin[:, 1:2]
+    limit = min((window + 0.5) * fan.spacing * (1.0 - 1e-3), 0.5 * math.pi)
+    wide = mask & (rho * rho >= (rx * rx + ry * ry) * math.sin(limit) ** 2)
+    return fan.index_of(torch.atan2(ry, rx)), wide
+
+
+def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 16, unroll: bool | None = None) -> Tensor:
+    """Nearest hit distance ``(B, n)`` along every ray of ``fan``, ``inf`` on a miss.
+
+    Kinds with at most ``dense_slots`` slots are tested against every ray; larger ones
+    go through the angular broad phase (module docstring). ``unroll`` picks the
+    reduction of the every-ray tests.
+    """
+    unroll = _auto_unroll(world) if unroll is None else unroll
+    dx, dy = torch.cos(fan.angles), torch.sin(fan.angles)
+    ox, oy = fan.origin[:, 0:1], fan.origin[:, 1:2]
+    best = torch.full_like(dx, _INF)
+    b = dx.shape[0]
+    for key, mkey, fn in KINDS:
+        obs, mask = getattr(world, key), getattr(world, mkey)
+        n_slots, width = obs.shape[1], obs.shape[-1]
+        if n_slots == 0:
+            continue
+        if n_slots <= dense_slots:
+            best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, unroll))
+            continue
+        with torch.no_grad():
+            u, wide = _window_and_wide(fan, key, obs.detach(), mask, window)
+            dense, dense_ok = _first_wide(wide, dense_slots)
+            # Window ray indices, kept in floating point (integer division is slow on CPU).
+            k = torch.round(u).unsqueeze(-1) + torch.arange(-window, window + 1, device=obs.device, dtype=u.dtype)
+            if fan.closed:
+                k = k - fan.n * torch.floor(k / fan.n)
+                valid = torch.ones_like(k, dtype=torch.bool)
+            else:
+                valid = (k >= 0) & (k <= fan.n - 1)
+            flat = k.clamp(0, fan.n - 1).reshape(b, -1).long()  # (B, N * (2 window + 1))
+        dense_obs = obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width))
+        best = torch.minimum(best, _cast_all(ox, oy, dx, dy, dense_obs, dense_ok & mask.gather(1, dense), fn, unroll))
+        angle = fan.first.reshape(b, 1, 1) + k * fan.spacing  # differentiable in the sensor's heading
+        wdx, wdy = torch.cos(angle), torch.sin(angle)
+        hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), wdx, wdy, obs.unsqueeze(2), mask.unsqueeze(-1) & valid)
+        best = best.scatter_reduce(1, flat, hits.reshape(b, -1), "amin", include_self=True)
+    return best
+
+
+def _first_wide(wide: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """Slot indices ``(B, k)`` of the first ``k`` True entries of ``wide`` ``(B, N)`` per row, and
+    which of them are real (rows with fewer than ``k`` fill with slot 0, marked False).
+
+    A running count and one scatter: cheaper than ``topk`` and free of host syncs.
+    """
+    b, n = wide.shape
+    rank = wide.long().cumsum(1) - 1
+    slot = torch.where(wide & (rank < k), rank, k)  # slot k collects everything not taken
+    order = torch.arange(n, device=wide.device).expand(b, n)
+    picked = torch.zeros(b, k + 1, dtype=torch.long, device=wide.device).scatter(1, slot, order)
+    taken = torch.zeros(b, k + 1, dtype=torch.bool, device=wide.device).scatter(1, slot, wide)
+    return picked[:, :k], taken[:, :k]
+
+
+def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 16) -> Tensor:
+    """``(B,)`` bool: True where :func:`cast_fan` equals the every-ray-every-slot cast, i.e. no
+    kind of the env has more than ``dense_slots`` obstacles too wide for their window."""
+    ok = torch.ones(fan.origin.shape[0], dtype=torch.bool, device=fan.origin.device)
+    for key, mkey, _ in KINDS:
+        obs, mask = getattr(world, key), getattr(world, mkey)
+        if obs.shape[1] > dense_slots:
+            ok &= _window_and_wide(fan, key, obs.detach(), mask, window)[1].sum(1) <= dense_slots
+    return ok
