@@ -40,6 +40,9 @@ class LidarConfig:
     n_sectors: int = 20  # observation bins (min over consecutive rays); must divide n_rays
     noise_std: float = 0.0  # m, Gaussian range noise
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose on the robot: m, m, rad
+    scan: str = "rays"  # "rays", or "sectors": n_rays exact wedges (nearest obstacle point in each)
+    window: int = 2  # broad phase for many obstacles: rays tested each side of an obstacle's direction
+    dense_slots: int = 16  # broad phase: obstacles per kind tested on every ray (see docs/sim.md)
 
 
 @dataclass(frozen=True)
@@ -134,6 +137,7 @@ class NavConfig:
             lidar = LidarParams(
                 n_rays=li.n_rays, fov=math.radians(li.fov_deg), min_range=li.min_range, max_range=li.max_range,
                 offset=li.offset, n_sectors=li.n_sectors, noise_std=li.noise_std,
+                scan=li.scan, window=li.window, dense_slots=li.dense_slots,
             )
             return SimParams(
                 dt=r.dt, robot_radius=r.radius, track_width=r.track_width,
