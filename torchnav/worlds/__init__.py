@@ -1,0 +1,1 @@
+"""Procedural worlds: seeded, batched generators that write ``World`` tensors directly."""
