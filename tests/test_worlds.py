@@ -1,0 +1,294 @@
+"""Procedural worlds: shapes, reachability (checked by an independent planner), seeding,
+difficulty, errors, the mixture, and the wavefront and rasteriser against naive versions."""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from torchnav.controllers.planning import Obstacles, OccupancyGrid, plan_astar
+from torchnav.maps import load_map
+from torchnav.sim import World, cat_worlds, check_world, points_clearance
+from torchnav.worlds import FAMILIES, cat_batches, goal_band, make_worlds, mix_worlds
+from torchnav.worlds import cave, corridors, forest, open_space, rooms
+from torchnav.worlds.raster import clearance_grid
+from torchnav.worlds.wavefront import DIAG, ORTHO, UNREACHED, geodesic_distance
+
+NAMES = list(FAMILIES)
+DIFFS = torch.linspace(0.0, 1.0, 6)
+
+
+def gen(seed: int = 0) -> torch.Generator:
+    return torch.Generator().manual_seed(seed)
+
+
+@pytest.fixture(scope="module")
+def batches():
+    """Six envs of every family (and a shipped map), at difficulties 0, 0.2, ..., 1."""
+    return {name: make_worlds(name, 6, DIFFS, gen(1)) for name in NAMES + ["map:maze"]}
+
+
+def obstacles_of(batch, e: int) -> Obstacles:
+    w = batch.world
+    pick = lambda t, m: t[e][m[e]].double().numpy()  # noqa: E731
+    return Obstacles(pick(w.segments, w.segment_mask), pick(w.circles, w.circle_mask), pick(w.boxes, w.box_mask), tuple(batch.bounds[e].tolist()))
+
+
+# ------------------------------------------------------------------ episodes and reachability
+
+
+@pytest.mark.parametrize("name", NAMES + ["map:maze"])
+def test_every_episode_is_reachable_by_an_independent_planner(batches, name):
+    b = batches[name]
+    r = b.robot_radius
+    assert (points_clearance(b.start[:, None, :2], b.world)[:, 0] > r).all()
+    assert (points_clearance(b.goal[:, None], b.world)[:, 0] > r).all()
+    for xy in (b.start[:, :2], b.goal):
+        assert ((xy > b.bounds[:, :2] + r) & (xy < b.bounds[:, 2:] - r)).all()
+    for e in range(len(b)):
+        # numpy geometry and A* on a finer grid, inflated by the bare robot radius
+        grid = OccupancyGrid.build(obstacles_of(b, e), 0.05)
+        path = plan_astar(grid, b.start[e, :2].numpy(), b.goal[e].numpy(), inflate=r, snap=0.1)
+        assert path is not None, f"{name} env {e}: no path"
+        shortest = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+        straight = float((b.goal[e] - b.start[e, :2]).norm())
+        # Ours is an octile path on a coarser, more inflated grid: never shorter, at most ~20% longer.
+        assert straight - 1e-4 <= float(b.path_length[e]) and shortest - 0.05 <= float(b.path_length[e]) <= 1.25 * shortest + 0.3
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_shapes_masks_and_bounds_do_not_depend_on_difficulty(name):
+    easy, hard = make_worlds(name, 3, 0.0, gen()), make_worlds(name, 3, 1.0, gen())
+    for b in (easy, hard):
+        check_world(b.world, 3, torch.float32, torch.device("cpu"))
+        assert b.start.shape == (3, 3) and b.goal.shape == (3, 2) and b.path_length.shape == (3,) and b.bounds.shape == (3, 4)
+        assert b.family == (name,) * 3 and b.difficulty.shape == (3,)
+        w = b.world
+        # Bounded by walls: the first four segments run along the bounds.
+        assert w.segment_mask[:, :4].all()
+        lo, hi = b.bounds[:, None, :2], b.bounds[:, None, 2:]
+        ends = w.segments[:, :4].reshape(3, 8, 2)
+        assert (((ends - lo).abs() < 1e-5) | ((ends - hi).abs() < 1e-5)).all(-1).all()
+        # Every obstacle switched on lies inside the bounds.
+        eps = 1e-4
+        seg = w.segments.reshape(3, -1, 2)
+        inside = lambda p, pad: ((p - pad >= lo - eps) & (p + pad <= hi + eps)).all(-1)  # noqa: E731
+        assert (inside(seg, 0) | ~w.segment_mask.repeat_interleave(2, 1)).all()
+        assert (inside(w.circles[..., :2], w.circles[..., 2:]) | ~w.circle_mask).all()
+        c, s = w.boxes[..., 4:].cos().abs(), w.boxes[..., 4:].sin().abs()
+        hx, hy = w.boxes[..., 2:3], w.boxes[..., 3:4]
+        assert (inside(w.boxes[..., :2], torch.cat((c * hx + s * hy, s * hx + c * hy), -1)) | ~w.box_mask).all()
+    for key in ("segments", "circles", "boxes"):
+        assert getattr(easy.world, key).shape == getattr(hard.world, key).shape
+    assert easy.world.segment_mask.sum() + easy.world.circle_mask.sum() + easy.world.box_mask.sum() > 12
+
+
+# ------------------------------------------------------------------------------ seeding
+
+
+def test_same_seed_same_worlds_and_other_seeds_other_worlds():
+    for name in NAMES:
+        a, b, c = (make_worlds(name, 4, DIFFS[:4], gen(s)) for s in (7, 7, 8))
+        for key in ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask"):
+            assert torch.equal(getattr(a.world, key), getattr(b.world, key)), (name, key)
+        for key in ("start", "goal", "path_length", "bounds"):
+            assert torch.equal(getattr(a, key), getattr(b, key)), (name, key)
+        assert not torch.equal(a.start, c.start), name
+        assert not all(torch.equal(getattr(a.world, k), getattr(c.world, k)) for k in ("segments", "circles", "boxes")), name
+
+
+def test_generation_leaves_the_global_rng_alone():
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    make_worlds("forest", 2, 0.5, gen())
+    assert torch.equal(torch.rand(3), expected)
+
+
+# ----------------------------------------------------------------------------- difficulty
+
+
+def test_parameters_move_monotonically_with_difficulty():
+    d = torch.linspace(0, 1, 11)
+    up = lambda t: bool((t[1:] >= t[:-1]).all() and t[-1] > t[0])  # noqa: E731
+    down = lambda t: up(-t)  # noqa: E731
+    r, c, k, f, o = rooms.params(d), corridors.params(d), cave.params(d), forest.params(d), open_space.params(d)
+    assert up(r["rooms_per_side"]) and down(r["door_width"]) and r["door_width"][0] == 1.6 and r["door_width"][-1] == 0.8
+    assert up(c["cells_per_side"]) and down(c["corridor_width"]) and down(c["loop_prob"])
+    assert up(k["fill"])
+    assert up(f["posts"]) and down(f["radius_min"]) and down(f["radius_max"]) and abs(float(f["radius_min"][-1]) - 0.05) < 1e-6
+    assert up(o["side"]) and up(o["boxes"]) and float(o["side"][-1]) == 20.0
+    lo, hi = goal_band(d)
+    assert up(lo) and up(hi) and (lo < hi).all()
+
+
+def test_measured_geometry_follows_difficulty():
+    easy, hard = torch.zeros(16), torch.ones(16)
+    # rooms: the gap between the two segments of a wall with a door is the door width
+    for d, width in ((easy, 1.6), (hard, 0.8)):
+        w, _ = rooms.layout(d, gen())
+        seg, mask = w.segments[:, 4:].reshape(16, -1, 2, 4), w.segment_mask[:, 4:].reshape(16, -1, 2)
+        door = mask[..., 1]
+        gap = (seg[..., 1, :2] - seg[..., 0, 2:]).norm(dim=-1)[door]
+        assert door.any() and torch.allclose(gap, torch.full_like(gap, width), atol=1e-4)
+    (we, _), (wh, _) = rooms.layout(easy, gen()), rooms.layout(hard, gen())
+    assert wh.segment_mask.sum() > we.segment_mask.sum()
+    # forest: more and thinner posts
+    (fe, _), (fh, _) = forest.layout(easy, gen()), forest.layout(hard, gen())
+    assert (fh.circle_mask.sum(1) > fe.circle_mask.sum(1)).all()
+    assert fh.circles[..., 2][fh.circle_mask].mean() < fe.circles[..., 2][fe.circle_mask].mean()
+    assert fh.circles[..., 2][fh.circle_mask].min() >= 0.05 - 1e-6
+    # cave: more rock
+    rock = lambda w: (4 * w.boxes[..., 2] * w.boxes[..., 3] * w.box_mask).sum(1).mean()  # noqa: E731
+    assert rock(cave.layout(hard, gen())[0]) > 1.5 * rock(cave.layout(easy, gen())[0])
+    # corridors: narrower (the maze side is cells * width)
+    (_, be), (_, bh) = corridors.layout(easy, gen()), corridors.layout(hard, gen())
+    assert torch.allclose(be[:, 2] * 2, torch.full((16,), 8.0)) and torch.allclose(bh[:, 2] * 2, torch.full((16,), 7.2))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_goals_get_farther_with_difficulty(name):
+    easy, hard = make_worlds(name, 16, 0.0, gen(2)), make_worlds(name, 16, 1.0, gen(2))
+    assert hard.path_length.mean() > 1.5 * easy.path_length.mean()
+    assert (easy.path_length >= 1.0).all()
+
+
+# ---------------------------------------------------------------------------------- errors
+
+
+def test_bad_arguments_raise_errors_that_name_the_problem():
+    with pytest.raises(ValueError, match="unknown world family 'room'.*rooms"):
+        make_worlds("room", 2, 0.5, gen())
+    with pytest.raises(ValueError, match=r"unknown world family map:nowhere"):
+        make_worlds("map:nowhere", 2, 0.5, gen())
+    with pytest.raises(ValueError, match=r"difficulty must lie in \[0, 1\], got 1.5"):
+        make_worlds("rooms", 2, 1.5, gen())
+    with pytest.raises(ValueError, match=r"difficulty must lie in \[0, 1\], got nan"):
+        make_worlds("rooms", 2, torch.tensor([0.2, math.nan]), gen())
+    with pytest.raises(ValueError, match=r"difficulty must be a number or a \(2,\) tensor, got shape \(3,\)"):
+        make_worlds("rooms", 2, torch.zeros(3), gen())
+    with pytest.raises(ValueError, match="num_envs must be >= 1"):
+        make_worlds("rooms", 0, 0.5, gen())
+    with pytest.raises(ValueError, match="generator is on cpu"):
+        make_worlds("rooms", 2, 0.5, gen(), device="meta")
+    with pytest.raises(ValueError, match="at least one family"):
+        mix_worlds(4, [], 0.5, gen())
+    with pytest.raises(ValueError, match="weights must be >= 0"):
+        mix_worlds(4, {"rooms": -1.0, "cave": 1.0}, 0.5, gen())
+    with pytest.raises(ValueError, match="no free space for a robot of radius 4"):
+        make_worlds("corridors", 1, 0.5, gen(), robot_radius=4.0)
+    a, b = make_worlds("open", 1, 0.0, gen()), make_worlds("open", 1, 0.0, gen(), robot_radius=0.3)
+    with pytest.raises(ValueError, match="different robot radii"):
+        cat_batches([a, b])
+
+
+# --------------------------------------------------------------------------------- mixture
+
+
+def test_mixture_draws_a_family_per_env_and_pads_slots():
+    weights = {"rooms": 1.0, "forest": 1.0, "map:arena": 1.0}
+    d = torch.rand(24, generator=gen(5))
+    m = mix_worlds(24, weights, d, gen(3))
+    assert len(m) == 24 and set(m.family) == set(weights) and torch.equal(m.difficulty, d)
+    w = m.world
+    arena = load_map("arena").build_world(1)
+    for e, fam in enumerate(m.family):
+        n_seg, n_circ = int(w.segment_mask[e].sum()), int(w.circle_mask[e].sum())
+        if fam == "forest":
+            assert n_seg == 4 and n_circ > 0
+        elif fam == "rooms":
+            assert n_seg > 4 and n_circ == 0
+        else:
+            assert torch.equal(w.segments[e][w.segment_mask[e]], arena.segments[0]) and n_circ == 0 and not w.box_mask[e].any()
+    assert w.circles.shape[1] == forest.MAX_POSTS and w.segments.shape[1] == rooms_slots()
+    assert (points_clearance(m.start[:, None, :2], w)[:, 0] > m.robot_radius).all()
+    again = mix_worlds(24, weights, d, gen(3))
+    assert again.family == m.family and torch.equal(again.goal, m.goal) and torch.equal(again.world.segments, w.segments)
+
+
+def rooms_slots() -> int:
+    return 4 + 2 * 2 * rooms.MAX_ROOMS * (rooms.MAX_ROOMS - 1)
+
+
+# ---------------------------------------------------------------------- vectorised vs naive
+
+
+def dijkstra(free: np.ndarray, source: int) -> np.ndarray:
+    h, w = free.shape
+    dist = np.full(h * w, UNREACHED, dtype=np.int64)
+    dist[source] = 0
+    heap = [(0, source)]
+    while heap:
+        d, u = heapq.heappop(heap)
+        if d > dist[u]:
+            continue
+        j, i = divmod(u, w)
+        for dj in (-1, 0, 1):
+            for di in (-1, 0, 1):
+                jj, ii = j + dj, i + di
+                if (dj or di) and 0 <= jj < h and 0 <= ii < w and free[jj, ii]:
+                    nd = d + (DIAG if dj and di else ORTHO)
+                    if nd < dist[jj * w + ii]:
+                        dist[jj * w + ii] = nd
+                        heapq.heappush(heap, (nd, jj * w + ii))
+    return dist.reshape(h, w)
+
+
+def test_wavefront_equals_dijkstra_on_random_grids():
+    g = gen(4)
+    free = torch.rand(5, 23, 37, generator=g) > 0.35
+    free[:, 11, :] = True  # a long corridor, so that long paths exist
+    free[3] = torch.rand(23, 37, generator=g) > 0.6  # many small components
+    free[4, :, 18] = False  # a wall cutting the grid in two
+    source = torch.where(free.reshape(5, -1), torch.rand(5, 23 * 37, generator=g), -1.0).argmax(1)
+    got = geodesic_distance(free, source)
+    for e in range(5):
+        assert np.array_equal(got[e].numpy(), dijkstra(free[e].numpy(), int(source[e]))), e
+    assert (got[~free] == UNREACHED).all()
+
+
+def test_clearance_grid_is_exact_below_reach_and_above_it_elsewhere():
+    # walls, circles and rotated boxes of two maps of different sizes in one batch
+    world = cat_worlds([load_map("street").build_world(1), load_map("warehouse").build_world(1)])
+    reach, res, lo, shape = 0.35, 0.1, (-10.0, -10.0), (203, 198)
+    got = clearance_grid(world, lo, shape, res, reach)
+    ys = lo[1] + (torch.arange(shape[0]) + 0.5) * res
+    xs = lo[0] + (torch.arange(shape[1]) + 0.5) * res
+    pts = torch.stack(torch.meshgrid(ys, xs, indexing="ij")[::-1], -1).reshape(1, -1, 2).expand(2, -1, 2)
+    dense = points_clearance(pts, world).reshape(got.shape)
+    near = dense <= reach
+    # equal up to float32 round-off in the cell coordinates
+    assert near.any() and torch.allclose(got[near], dense[near], atol=1e-5) and (got[~near] > reach - 1e-5).all()
+
+
+def test_batches_concatenate_and_select():
+    a, b = make_worlds("corridors", 2, 0.5, gen()), make_worlds("forest", 3, 0.5, gen())
+    c = cat_batches([a, b])
+    assert len(c) == 5 and c.family == ("corridors",) * 2 + ("forest",) * 3
+    assert isinstance(c.world, World) and c.world.circles.shape[1] == forest.MAX_POSTS
+    s = c.select(torch.tensor([4, 0]))
+    assert s.family == ("forest", "corridors") and torch.equal(s.goal, torch.stack((c.goal[4], c.goal[0])))
+
+
+# ---------------------------------------------------------------------------------- timing
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_batch_of_64_generates_in_seconds(name):
+    t = time.perf_counter()
+    make_worlds(name, 64, torch.rand(64, generator=gen()), gen())
+    assert time.perf_counter() - t < 20.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", NAMES)
+def test_1024_envs_generate_in_under_a_minute(name):
+    t = time.perf_counter()
+    b = make_worlds(name, 1024, torch.rand(1024, generator=gen()), gen())
+    assert time.perf_counter() - t < 60.0
+    assert (points_clearance(b.start[:, None, :2], b.world)[:, 0] > b.robot_radius).all()

@@ -1,0 +1,64 @@
+"""WorldBatch: generated worlds with one episode (start, goal, path length) per env."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import torch
+from torch import Tensor
+
+from ..sim import World, cat_worlds
+
+
+@dataclass(frozen=True)
+class WorldBatch:
+    """``B`` generated worlds, each with a start and a reachable goal.
+
+    Attributes:
+        world: the obstacles, padded ``(B, N, ...)`` tensors with masks (see :class:`~torchnav.sim.World`).
+        start: ``(B, 3)`` start pose ``[x m, y m, theta rad]``.
+        goal: ``(B, 2)`` goal ``[x, y]`` m.
+        path_length: ``(B,)`` m, length of a collision-free path for the robot's
+            disc from start to goal (an upper bound on the shortest one, within a few percent).
+        bounds: ``(B, 4)`` ``[xmin, ymin, xmax, ymax]`` m of each world (walls run along them).
+        difficulty: ``(B,)`` in [0, 1], the difficulty each env was generated at.
+        family: ``B`` family names (``"rooms"``, ..., or ``"map:<name>"`` for a shipped map).
+        robot_radius: m, the disc the paths were planned for.
+    """
+
+    world: World
+    start: Tensor
+    goal: Tensor
+    path_length: Tensor
+    bounds: Tensor
+    difficulty: Tensor
+    family: tuple[str, ...]
+    robot_radius: float
+
+    def __len__(self) -> int:
+        return self.start.shape[0]
+
+    def select(self, index: Tensor) -> WorldBatch:
+        """The envs at ``index`` ``(n,)`` (int64), in that order."""
+        pick: Callable[[Tensor], Tensor] = lambda t: t[index]  # noqa: E731
+        return WorldBatch(
+            world=self.world[index], start=pick(self.start), goal=pick(self.goal), path_length=pick(self.path_length),
+            bounds=pick(self.bounds), difficulty=pick(self.difficulty),
+            family=tuple(self.family[i] for i in index.tolist()), robot_radius=self.robot_radius,
+        )
+
+
+def cat_batches(batches: Sequence[WorldBatch]) -> WorldBatch:
+    """Concatenate batches along the env dim; each obstacle kind is padded to the largest slot count."""
+    if not batches:
+        raise ValueError("cat_batches needs at least one WorldBatch")
+    radii = {b.robot_radius for b in batches}
+    if len(radii) > 1:
+        raise ValueError(f"cat_batches: the batches were planned for different robot radii {sorted(radii)}")
+    cat = lambda key: torch.cat([getattr(b, key) for b in batches])  # noqa: E731
+    return WorldBatch(
+        world=cat_worlds([b.world for b in batches]), start=cat("start"), goal=cat("goal"), path_length=cat("path_length"),
+        bounds=cat("bounds"), difficulty=cat("difficulty"), family=sum((b.family for b in batches), ()),
+        robot_radius=batches[0].robot_radius,
+    )

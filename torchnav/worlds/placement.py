@@ -1,0 +1,151 @@
+"""Start and goal placement with a guaranteed collision-free path for the robot's disc.
+
+For each env: sample the world's clearance on a grid of ``resolution`` m
+(:func:`~torchnav.worlds.raster.clearance_grid`), call a cell free when its
+centre is more than ``robot_radius + resolution / sqrt(2)`` m from every
+obstacle and from the world's edge, draw a start cell in a large free
+component, run a geodesic wavefront from it and pick a goal whose path length
+lies in a difficulty-dependent band.
+
+Why the path is safe: clearance is 1-Lipschitz, and every point of a straight
+step between neighbouring cell centres (axis or diagonal) lies within
+``resolution / sqrt(2)`` of one of its two ends, so the polyline through free
+cell centres keeps more than ``robot_radius`` from every obstacle. The start
+and goal are jittered inside their cells (again within ``resolution / sqrt(2)``
+of the centre), so they are collision-free too, and the path's length is the
+wavefront's octile length plus the two jitter offsets: an upper bound on the
+shortest collision-free path, tight to a few percent.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from ..sim import World
+from .layout import lerp, uniform
+from .raster import clearance_grid
+from .wavefront import ORTHO, UNREACHED, geodesic_distance
+
+GOAL_BAND_EASY = (0.1, 0.4)  # goal path length as a fraction of the farthest reachable one, at difficulty 0
+GOAL_BAND_HARD = (0.6, 1.0)  # ... and at difficulty 1 (linear in between)
+START_REDRAWS = 2  # redraws of a start that lies in a small free component
+_CELLS_PER_CHUNK = 1 << 21  # envs are placed in chunks of about this many grid cells (memory bound)
+
+
+def goal_band(difficulty: Tensor) -> tuple[Tensor, Tensor]:
+    """The ``(low, high)`` fractions ``(B,)`` of the farthest reachable path length between which
+    a goal's path length is drawn, at ``difficulty`` ``(B,)``."""
+    return lerp(GOAL_BAND_EASY[0], GOAL_BAND_HARD[0], difficulty), lerp(GOAL_BAND_EASY[1], GOAL_BAND_HARD[1], difficulty)
+
+
+def free_cells(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor]:
+    """Cells ``(B, H, W)`` whose centre is safe for the robot (see the module notes), and the
+    centres ``(H, W, 2)`` m of the batch's shared grid, which covers every env's bounds ``(B, 4)``."""
+    lo = bounds[:, :2].amin(0).tolist()
+    hi = bounds[:, 2:].amax(0).tolist()
+    shape = (math.ceil((hi[1] - lo[1]) / resolution), math.ceil((hi[0] - lo[0]) / resolution))
+    need = robot_radius + resolution / math.sqrt(2.0) + 1e-4  # 1e-4 m: float32 round-off
+    clear = clearance_grid(world, (lo[0], lo[1]), shape, resolution, reach=need)
+    like = bounds
+    xs = lo[0] + (torch.arange(shape[1], dtype=like.dtype, device=like.device) + 0.5) * resolution
+    ys = lo[1] + (torch.arange(shape[0], dtype=like.dtype, device=like.device) + 0.5) * resolution
+    centres = torch.stack(torch.meshgrid(ys, xs, indexing="ij")[::-1], -1)  # (H, W, 2) [x, y]
+    b = bounds[:, None, None, :]
+    edge = torch.minimum(
+        torch.minimum(centres[..., 0] - b[..., 0], b[..., 2] - centres[..., 0]),
+        torch.minimum(centres[..., 1] - b[..., 1], b[..., 3] - centres[..., 1]),
+    )
+    return (clear > need) & (edge > need), centres
+
+
+def _random_cell(candidates: Tensor, gen: torch.Generator) -> Tensor:
+    """A uniformly drawn True cell (flat index) of each row of ``candidates`` ``(B, N)``; 0 if none."""
+    key = torch.rand(candidates.shape, generator=gen, device=candidates.device)
+    return torch.where(candidates, key, -1.0).argmax(1)
+
+
+def _start_and_distances(free: Tensor, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+    """A start cell ``(B,)`` in a large free component and the distances from it ``(B, H * W)``.
+
+    The start is drawn uniformly over the free cells. Where its component holds
+    less than half of them (a pocket of a cave), it is redrawn among the free
+    cells it does not reach, up to ``START_REDRAWS`` times, keeping the start
+    that reaches the most cells.
+    """
+    b = free.shape[0]
+    flat_free = free.reshape(b, -1)
+    start = _random_cell(flat_free, gen)
+    dist = geodesic_distance(free, start).reshape(b, -1)
+    for _ in range(START_REDRAWS):
+        reached = (dist < UNREACHED).sum(1)
+        idx = (2 * reached < flat_free.sum(1)).nonzero()[:, 0]
+        if idx.numel() == 0:
+            break
+        other = _random_cell(flat_free[idx] & (dist[idx] == UNREACHED), gen)
+        d_other = geodesic_distance(free[idx], other).reshape(idx.numel(), -1)
+        better = (d_other < UNREACHED).sum(1) > reached[idx]
+        start[idx[better]], dist[idx[better]] = other[better], d_other[better]
+    return start, dist
+
+
+def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: float, gen: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
+    """Start cell, goal cell (flat indices, ``(B,)``) and the path length between them in cells."""
+    start, dist = _start_and_distances(free, gen)
+    reached = dist < UNREACHED
+    cells = dist.to(torch.float64) / ORTHO
+    far = torch.where(reached, cells, 0.0).amax(1, keepdim=True)
+    lo, hi = goal_band(difficulty.to(torch.float64))
+    in_band = reached & (cells >= lo[:, None] * far) & (cells <= hi[:, None] * far) & (cells >= min_goal_cells)
+    # Fallback when the band is empty (a component too small for min_goal): the farthest reachable cell.
+    farthest = torch.where(reached, cells, -1.0).argmax(1)
+    goal = torch.where(in_band.any(1), _random_cell(in_band, gen), farthest)
+    return start, goal, cells.gather(1, goal[:, None])[:, 0]
+
+
+def _place(
+    world: World, bounds: Tensor, difficulty: Tensor, gen: torch.Generator, robot_radius: float, resolution: float, min_goal_distance: float
+) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`place_episodes` for one chunk of envs."""
+    free, centres = free_cells(world, bounds, robot_radius, resolution)
+    empty = ~free.flatten(1).any(1)
+    if empty.any():
+        raise ValueError(f"no free space for a robot of radius {robot_radius} m at resolution {resolution} m in {int(empty.sum())} env(s)")
+    start_cell, goal_cell, cells = _place_chunk(free, difficulty, min_goal_distance / resolution, gen)
+    n, like, flat = bounds.shape[0], bounds, centres.reshape(-1, 2)
+    jitter = uniform(-0.5 * resolution, 0.5 * resolution, (2, n, 2), gen, like)
+    heading = uniform(-math.pi, math.pi, (n, 1), gen, like)
+    length = cells.to(like.dtype) * resolution + jitter.norm(dim=-1).sum(0)
+    return torch.cat((flat[start_cell] + jitter[0], heading), -1), flat[goal_cell] + jitter[1], length
+
+
+def place_episodes(
+    world: World,
+    bounds: Tensor,
+    difficulty: Tensor,
+    gen: torch.Generator,
+    robot_radius: float = 0.2,
+    resolution: float = 0.1,
+    min_goal_distance: float = 1.0,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Start poses ``(B, 3)``, goals ``(B, 2)`` and path lengths ``(B,)`` (m) in ``world``.
+
+    ``bounds`` ``(B, 4)`` ``[xmin, ymin, xmax, ymax]`` m per env; ``difficulty`` ``(B,)`` in
+    [0, 1] sets the goal band (:func:`goal_band`); goals are at least
+    ``min_goal_distance`` m of path from the start when the start's component allows
+    (else the goal is the farthest reachable cell). The start lies in a free
+    component holding at least half of the free space where one does (see
+    :func:`_start_and_distances`), with a uniform heading. Raises ValueError if
+    some env has no free cell for a disc of ``robot_radius`` m.
+    Envs are processed in chunks of about ``2**21`` grid cells to bound memory.
+    """
+    n = world.batch_size[0]
+    extent = (bounds[:, 2:] - bounds[:, :2]).amax(0) / resolution + 1
+    chunk = max(1, int(_CELLS_PER_CHUNK // float(extent.prod())))
+    parts = [
+        _place(world[i : i + chunk], bounds[i : i + chunk], difficulty[i : i + chunk], gen, robot_radius, resolution, min_goal_distance)
+        for i in range(0, n, chunk)
+    ]
+    return tuple(torch.cat(t) for t in zip(*parts))

@@ -1,0 +1,109 @@
+"""``make_worlds`` (one family) and ``mix_worlds`` (a family drawn per env), by name."""
+
+from __future__ import annotations
+
+from types import ModuleType
+from typing import Mapping, Sequence
+
+import torch
+from torch import Tensor
+
+from ..maps import MapError, available_maps, load_map
+from ..sim import World
+from . import cave, corridors, forest, open_space, rooms
+from .batch import WorldBatch, cat_batches
+from .layout import as_difficulty, centred_bounds
+from .placement import place_episodes
+
+FAMILIES: dict[str, ModuleType] = {"rooms": rooms, "corridors": corridors, "cave": cave, "forest": forest, "open": open_space}
+MAP_PREFIX = "map:"  # "map:<name>" is a shipped map (or a .yaml path) as a family
+MAP_RESOLUTION = 0.1  # m, placement grid for maps (coarser for maps over 24 m, see _map_layout)
+
+
+def _device(generator: torch.Generator, device: torch.device | str | None) -> torch.device:
+    dev = torch.device(device) if device is not None else generator.device
+    if dev.type != generator.device.type:
+        raise ValueError(f"the generator is on {generator.device} but the worlds are asked for on {dev}; pass a generator on {dev}")
+    return dev
+
+
+def _map_layout(name: str, num_envs: int, device: torch.device, dtype: torch.dtype) -> tuple[World, Tensor, float]:
+    """A shipped map's fixed obstacles in every env, its bounds ``(B, 4)`` and a placement
+    resolution (m) that keeps the wavefront grid within 240 cells a side."""
+    try:
+        spec = load_map(name)
+    except MapError as e:
+        raise ValueError(f"unknown world family {MAP_PREFIX}{name}: {e}") from None
+    world = spec.build_world(num_envs, device=device, dtype=dtype)
+    w, h = spec.size
+    bounds = centred_bounds(torch.full((num_envs,), w / 2, dtype=dtype, device=device), torch.full((num_envs,), h / 2, dtype=dtype, device=device))
+    return world, bounds, max(MAP_RESOLUTION, max(w, h) / 240)
+
+
+def make_worlds(
+    family: str,
+    num_envs: int,
+    difficulty: float | Tensor,
+    generator: torch.Generator,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+    robot_radius: float = 0.2,
+) -> WorldBatch:
+    """``num_envs`` worlds of one family, each with a start and a reachable goal.
+
+    ``family``: a name of :data:`FAMILIES` (``"rooms"``, ``"corridors"``, ``"cave"``,
+    ``"forest"``, ``"open"``) or ``"map:<name>"`` for a shipped map (its fixed obstacles;
+    random-object slots stay masked off). ``difficulty``: a number in [0, 1] or a
+    ``(num_envs,)`` tensor, per env. ``generator``: the only source of randomness
+    (same seed, same worlds); worlds are made on its device unless ``device`` is given
+    (it must then be of the same type). ``robot_radius`` (m): the disc that every
+    start-goal path is planned for. Worlds of one family share their slot counts.
+    """
+    dev = _device(generator, device)
+    d = as_difficulty(difficulty, num_envs, dev, dtype)
+    if family.startswith(MAP_PREFIX):
+        world, bounds, resolution = _map_layout(family[len(MAP_PREFIX) :], num_envs, dev, dtype)
+    elif family in FAMILIES:
+        world, bounds = FAMILIES[family].layout(d, generator)
+        resolution = FAMILIES[family].RESOLUTION
+    else:
+        raise ValueError(f"unknown world family {family!r}; known: {', '.join(FAMILIES)}, or {MAP_PREFIX}<name> with a map of {available_maps()}")
+    start, goal, length = place_episodes(world, bounds, d, generator, robot_radius=robot_radius, resolution=resolution)
+    return WorldBatch(
+        world=world, start=start, goal=goal, path_length=length, bounds=bounds, difficulty=d,
+        family=(family,) * num_envs, robot_radius=robot_radius,
+    )
+
+
+def mix_worlds(
+    num_envs: int,
+    families: Sequence[str] | Mapping[str, float],
+    difficulty: float | Tensor,
+    generator: torch.Generator,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+    robot_radius: float = 0.2,
+) -> WorldBatch:
+    """``num_envs`` worlds whose family is drawn per env from ``families``.
+
+    ``families``: names as for :func:`make_worlds` (drawn uniformly) or a mapping of
+    name to weight (drawn in proportion). Each family is generated once for all of
+    its envs; obstacle slots are padded to the largest count of each kind
+    (:func:`~torchnav.sim.cat_worlds`), and envs keep the order of the draw.
+    """
+    names = list(families)
+    if not names:
+        raise ValueError("mix_worlds needs at least one family")
+    weights = [float(families[k]) for k in names] if isinstance(families, Mapping) else [1.0] * len(names)
+    if min(weights) < 0 or sum(weights) <= 0:
+        raise ValueError(f"family weights must be >= 0 with a positive sum, got {dict(zip(names, weights))}")
+    dev = _device(generator, device)
+    d = as_difficulty(difficulty, num_envs, dev, dtype)
+    drawn = torch.multinomial(torch.tensor(weights, device=dev), num_envs, replacement=True, generator=generator)
+    parts, order = [], []
+    for k, name in enumerate(names):
+        idx = (drawn == k).nonzero()[:, 0]
+        if idx.numel():
+            parts.append(make_worlds(name, idx.numel(), d[idx], generator, dev, dtype, robot_radius))
+            order.append(idx)
+    return cat_batches(parts).select(torch.cat(order).argsort())
