@@ -129,6 +129,18 @@ def _count(ctx: _Ctx, v: Any, key: str) -> int:
     return v
 
 
+def _bool(ctx: _Ctx, v: Any, key: str) -> bool:
+    if not isinstance(v, bool):
+        raise ctx.fail(key, f"expected true or false, got {_show(v)}")
+    return v
+
+
+def _grey_level(ctx: _Ctx, v: Any, key: str) -> float:
+    if not _is_number(v) or not 0 < v < 1:
+        raise ctx.fail(key, f"expected a grey level in (0, 1), got {_show(v)}")
+    return float(v)
+
+
 def _inside(ctx: _Ctx, key: str, what: str, xs: list[float], ys: list[float], size: tuple[float, float]) -> None:
     hw, hh = size[0] / 2 + _TOL, size[1] / 2 + _TOL
     for x, y in zip(xs, ys):
