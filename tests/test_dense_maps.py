@@ -11,11 +11,12 @@ import pytest
 import torch
 from PIL import Image
 
-from reference import naive_scan
+from reference import naive_point_clearance, naive_scan
 from torchnav.maps import MapError, load_map, parse_map
 from torchnav.maps.occupancy import mask_boxes, mask_rectangles
-from torchnav.sim import lidar_scan
+from torchnav.sim import lidar_scan, points_clearance
 from torchnav.sim.params import LidarParams
+from torchnav.tasks import sampling
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -225,3 +226,30 @@ def test_forest_world_shape_and_lidar_against_naive(forest):
     got = lidar_scan(pose, world, lidar)
     assert torch.allclose(got, torch.tensor(naive_scan(pose, world, lidar), dtype=torch.float64), atol=1e-9)
     assert (got < lidar.max_range).sum() > 12  # the rays do hit trees
+
+
+def test_chunked_clearance_equals_one_call(forest, monkeypatch):
+    world = forest.build_world(4)
+    pts = torch.rand(4, 50, 2, generator=torch.Generator().manual_seed(0)) * 30 - 15
+    whole = points_clearance(pts, world)
+    monkeypatch.setattr(sampling, "_CHUNK_ELEMENTS", 4 * 404 * 7)  # 7 points per chunk, the last one short
+    assert torch.equal(sampling._clearance(pts, world), whole)
+    monkeypatch.setattr(sampling, "_CHUNK_ELEMENTS", 1)  # still one point at a time
+    assert torch.equal(sampling._clearance(pts, world), whole)
+    assert whole[0, 0].item() == pytest.approx(naive_point_clearance(*pts[0, 0].tolist(), world, 0), abs=1e-5)
+
+
+def test_reset_on_a_dense_map_never_starts_in_collision(forest):
+    from torchnav.tasks import CurriculumState, NavConfig, NavTask
+
+    cfg = NavConfig(map=forest.source)
+    task = NavTask(cfg, num_envs=256)
+    gen = torch.Generator().manual_seed(3)
+    state, _ = task.initial_state(CurriculumState.initial(cfg.curriculum), gen)
+    need = cfg.robot.radius + cfg.reset.start_clearance
+    assert (state.sim.clearance >= cfg.reset.start_clearance - 1e-5).all() and not state.sim.collided.any()
+    start_gap = points_clearance(state.start[:, None, :2], state.world)[:, 0]
+    assert (start_gap >= need - 1e-5).all()  # random objects included
+    goal_gap = points_clearance(state.goal[:, None], state.world)[:, 0]
+    assert (goal_gap >= cfg.reset.goal_clearance - 1e-5).all()
+    assert state.world.circle_mask[:, 400:].float().mean() > 0.9  # random objects found room
