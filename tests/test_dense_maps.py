@@ -253,3 +253,8 @@ def test_reset_on_a_dense_map_never_starts_in_collision(forest):
     goal_gap = points_clearance(state.goal[:, None], state.world)[:, 0]
     assert (goal_gap >= cfg.reset.goal_clearance - 1e-5).all()
     assert state.world.circle_mask[:, 400:].float().mean() > 0.9  # random objects found room
+
+
+def test_docs_show_the_example_map_verbatim():
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "maps.md").read_text()
+    assert (DATA / "dense_room.yaml").read_text() in docs
