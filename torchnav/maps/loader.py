@@ -1,11 +1,12 @@
 """YAML map files -> :class:`~torchnav.maps.spec.MapSpec`.
 
-A map file describes one static world (walls, fixed circles and boxes) plus how
-many objects the task should re-place at random on every reset. The schema is
-documented key by key in ``docs/maps.md``. Parsing is strict: an unknown key, a
-wrong type or an obstacle outside the world raises :class:`MapError` naming the
-file and the key path (``maps/foo.yaml: boxes[2].size: ...``), because a typo that
-is silently ignored produces a different world than the one the user wrote.
+A map file describes one static world (walls, polygon outlines, fixed circles
+and boxes, an occupancy image) plus how many objects the task should re-place at
+random on every reset. The schema is documented key by key in ``docs/maps.md``.
+Parsing is strict: an unknown key, a wrong type or an obstacle outside the world
+raises :class:`MapError` naming the file and the key path
+(``maps/foo.yaml: boxes[2].size: ...``), because a typo that is silently ignored
+produces a different world than the one the user wrote.
 """
 
 from __future__ import annotations
