@@ -1,4 +1,4 @@
-"""Write docs/img/maps/<name>.png for every shipped map.
+"""Write docs/img/maps/<name>.png for every shipped map and the dense example map of docs/maps.md.
 
 Run from anywhere:  python docs/scripts/map_pictures.py
 Each picture shows the fixed obstacles (grey), one example layout of the
@@ -19,6 +19,7 @@ from torchnav.maps.free_space import free_grid
 from torchnav.render import draw_robots, plot_map
 
 OUT = Path(__file__).resolve().parents[1] / "img" / "maps"
+EXAMPLE = Path(__file__).resolve().parents[2] / "tests" / "data" / "dense_room.yaml"  # not shipped: an example
 ROBOT_RADIUS = 0.2  # m, the default SimParams.robot_radius
 
 
@@ -31,15 +32,14 @@ def scale_robot_pose(spec) -> np.ndarray:
 
 def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
-    for name in available_maps():
-        spec = load_map(name)
+    for spec in [load_map(name) for name in available_maps()] + [load_map(EXAMPLE)]:
         w, h = spec.size
         fig = Figure(figsize=(4.5, 4.5 * h / w + 0.5), dpi=90)
         FigureCanvasAgg(fig)
         ax = fig.add_subplot()
         plot_map(spec, ax, n_samples=1, seed=1)
         draw_robots(ax, scale_robot_pose(spec), ROBOT_RADIUS)
-        path = OUT / f"{name}.png"
+        path = OUT / f"{spec.name}.png"
         fig.savefig(path, bbox_inches="tight")
         print(f"{path} ({path.stat().st_size // 1024} KB)")
 

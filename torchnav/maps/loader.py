@@ -1,11 +1,12 @@
 """YAML map files -> :class:`~torchnav.maps.spec.MapSpec`.
 
-A map file describes one static world (walls, fixed circles and boxes) plus how
-many objects the task should re-place at random on every reset. The schema is
-documented key by key in ``docs/maps.md``. Parsing is strict: an unknown key, a
-wrong type or an obstacle outside the world raises :class:`MapError` naming the
-file and the key path (``maps/foo.yaml: boxes[2].size: ...``), because a typo that
-is silently ignored produces a different world than the one the user wrote.
+A map file describes one static world (walls, polygon outlines, fixed circles
+and boxes, an occupancy image) plus how many objects the task should re-place at
+random on every reset. The schema is documented key by key in ``docs/maps.md``.
+Parsing is strict: an unknown key, a wrong type or an obstacle outside the world
+raises :class:`MapError` naming the file and the key path
+(``maps/foo.yaml: boxes[2].size: ...``), because a typo that is silently ignored
+produces a different world than the one the user wrote.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 
 import yaml
 
+from .occupancy import ImageError, mask_boxes, read_mask
 from .spec import MapError, MapSpec, RandomBoxes, RandomCircles
 
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
@@ -129,6 +131,18 @@ def _count(ctx: _Ctx, v: Any, key: str) -> int:
     return v
 
 
+def _bool(ctx: _Ctx, v: Any, key: str) -> bool:
+    if not isinstance(v, bool):
+        raise ctx.fail(key, f"expected true or false, got {_show(v)}")
+    return v
+
+
+def _grey_level(ctx: _Ctx, v: Any, key: str) -> float:
+    if not _is_number(v) or not 0 < v < 1:
+        raise ctx.fail(key, f"expected a grey level in (0, 1), got {_show(v)}")
+    return float(v)
+
+
 def _inside(ctx: _Ctx, key: str, what: str, xs: list[float], ys: list[float], size: tuple[float, float]) -> None:
     hw, hh = size[0] / 2 + _TOL, size[1] / 2 + _TOL
     for x, y in zip(xs, ys):
@@ -169,13 +183,20 @@ def _walls(ctx: _Ctx, v: Any, size: tuple[float, float]) -> tuple:
 
 def _circles(ctx: _Ctx, v: Any, size: tuple[float, float]) -> tuple:
     if not isinstance(v, list):
-        raise ctx.fail("circles", f"expected a list of {{center, radius}}, got {_show(v)}")
+        raise ctx.fail("circles", f"expected a list of {{center, radius}} or [cx, cy, r], got {_show(v)}")
     out = []
     for i, c in enumerate(v):
         key = f"circles[{i}]"
-        c = _mapping(ctx, c, key, ("center", "radius"), ())
-        cx, cy = _vector(ctx, c["center"], f"{key}.center", 2)
-        r = _number(ctx, c["radius"], f"{key}.radius", "pos")
+        if isinstance(c, list):  # the compact row form, for maps with hundreds of circles
+            cx, cy, r = _vector(ctx, c, key, 3)
+            if r <= 0:
+                raise ctx.fail(key, f"expected [cx, cy, r] with a positive radius r, got {_show(c)}")
+        elif isinstance(c, dict):
+            c = _mapping(ctx, c, key, ("center", "radius"), ())
+            cx, cy = _vector(ctx, c["center"], f"{key}.center", 2)
+            r = _number(ctx, c["radius"], f"{key}.radius", "pos")
+        else:
+            raise ctx.fail(key, f"expected {{center, radius}} or [cx, cy, r], got {_show(c)}")
         _inside(ctx, key, "the circle's edge point", [cx - r, cx + r, cx, cx], [cy, cy, cy - r, cy + r], size)
         out.append((cx, cy, r))
     return tuple(out)
@@ -196,6 +217,60 @@ def _boxes(ctx: _Ctx, v: Any, size: tuple[float, float]) -> tuple:
         _inside(ctx, key, "a corner of the box", [p[0] for p in corners], [p[1] for p in corners], size)
         out.append((cx, cy, sx / 2, sy / 2, yaw))
     return tuple(out)
+
+
+def _polygons(ctx: _Ctx, v: Any, size: tuple[float, float]) -> tuple:
+    """Walls along each outline: ``[[x, y], ...]`` (closed) or ``{points, closed}``."""
+    if not isinstance(v, list):
+        raise ctx.fail("polygons", f"expected a list of outlines [[x, y], ...] or {{points, closed}}, got {_show(v)}")
+    segments: list[tuple[float, float, float, float]] = []
+    for i, p in enumerate(v):
+        key, closed = f"polygons[{i}]", True
+        if isinstance(p, dict):
+            p = _mapping(ctx, p, key, ("points",), ("closed",))
+            closed = _bool(ctx, p.get("closed", True), f"{key}.closed")
+            key, p = f"{key}.points", p["points"]
+        need = 3 if closed else 2
+        if not isinstance(p, list) or len(p) < need:
+            raise ctx.fail(key, f"expected a list of at least {need} [x, y] vertices, got {_show(p)}")
+        pts = [_vector(ctx, q, f"{key}[{j}]", 2) for j, q in enumerate(p)]
+        for j, (x, y) in enumerate(pts):
+            _inside(ctx, f"{key}[{j}]", "the vertex", [x], [y], size)
+        n = len(pts)
+        for j in range(n if closed else n - 1):
+            a, b = pts[j], pts[(j + 1) % n]
+            if a == b:
+                again = " (a closed outline must not repeat its first vertex at the end)" if j == n - 1 else ""
+                raise ctx.fail(key, f"edge from vertex {j} to vertex {(j + 1) % n} has zero length at ({a[0]:g}, {a[1]:g}){again}")
+            segments.append((*a, *b))
+    return tuple(segments)
+
+
+def _occupancy(ctx: _Ctx, v: Any, size: tuple[float, float], base_dir: str | os.PathLike | None) -> tuple:
+    """Boxes covering exactly the occupied pixels of the ``occupancy`` image (see :mod:`.occupancy`)."""
+    k = "occupancy"
+    v = _mapping(ctx, v, k, ("image", "resolution"), ("origin", "threshold", "invert"))
+    img = v["image"]
+    if not isinstance(img, str) or not img:
+        raise ctx.fail(f"{k}.image", f"expected a path to a PNG file, got {_show(img)}")
+    res = _number(ctx, v["resolution"], f"{k}.resolution", "pos")
+    thr = _grey_level(ctx, v.get("threshold", 0.5), f"{k}.threshold")
+    invert = _bool(ctx, v.get("invert", False), f"{k}.invert")
+    path = Path(img) if base_dir is None or os.path.isabs(img) else Path(base_dir) / img
+    try:
+        # Dark pixels are occupied (black on white, as drawn and as ROS map_server images), light ones with invert.
+        mask = read_mask(path, thr, invert=not invert)
+    except ImageError as e:
+        raise ctx.fail(f"{k}.image", str(e)) from None
+    h, w = mask.shape
+    origin = _vector(ctx, v["origin"], f"{k}.origin", 2) if "origin" in v else (-w * res / 2, -h * res / 2)
+    if not mask.any():
+        side = "above" if invert else "below"
+        raise ctx.fail(f"{k}.image", f"{path}: no pixel has a grey level {side} the threshold {thr:g}; check threshold and invert")
+    boxes = mask_boxes(mask, res, origin)
+    lo, hi = boxes[:, :2] - boxes[:, 2:4], boxes[:, :2] + boxes[:, 2:4]
+    _inside(ctx, k, "a corner of an occupied pixel", [*lo[:, 0], *hi[:, 0]], [*lo[:, 1], *hi[:, 1]], size)
+    return tuple(tuple(b) for b in boxes.tolist())
 
 
 def _fits(ctx: _Ctx, key: str, extent: float, size: tuple[float, float]) -> None:
@@ -235,13 +310,18 @@ def _random_circles(ctx: _Ctx, v: Any, size: tuple[float, float]) -> RandomCircl
     return rc
 
 
-_TOP_KEYS = ("name", "size", "walls", "circles", "boxes", "random_boxes", "random_circles")
+_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles")
 
 
-def parse_map(data: Any, source: str = "<dict>", default_name: str = "map") -> MapSpec:
+def parse_map(
+    data: Any, source: str = "<dict>", default_name: str = "map", base_dir: str | os.PathLike | None = None
+) -> MapSpec:
     """Validate an already-parsed map (the dict a YAML file loads to) into a :class:`MapSpec`.
 
-    ``source`` is only used in error messages and :attr:`MapSpec.source`.
+    ``source`` is only used in error messages and :attr:`MapSpec.source`. ``base_dir``
+    resolves a relative ``occupancy.image`` path (``load_map`` passes the file's folder;
+    None: the current directory). Segments are the ``walls`` followed by the ``polygons``
+    edges; boxes are the ``boxes`` followed by the ``occupancy`` boxes.
     """
     ctx = _Ctx(source)
     if data is None:
@@ -257,15 +337,17 @@ def parse_map(data: Any, source: str = "<dict>", default_name: str = "map") -> M
         name=name,
         source=source,
         size=size,
-        segments=_walls(ctx, d["walls"], size) if "walls" in d else (),
+        segments=(_walls(ctx, d["walls"], size) if "walls" in d else ())
+        + (_polygons(ctx, d["polygons"], size) if "polygons" in d else ()),
         circles=_circles(ctx, d["circles"], size) if "circles" in d else (),
-        boxes=_boxes(ctx, d["boxes"], size) if "boxes" in d else (),
+        boxes=(_boxes(ctx, d["boxes"], size) if "boxes" in d else ())
+        + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
         random_boxes=_random_boxes(ctx, d["random_boxes"], size) if "random_boxes" in d else None,
         random_circles=_random_circles(ctx, d["random_circles"], size) if "random_circles" in d else None,
     )
 
 
-def _parse_text(text: str, source: str, default_name: str) -> MapSpec:
+def _parse_text(text: str, source: str, default_name: str, base_dir: str | os.PathLike) -> MapSpec:
     try:
         data = yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
     except _DuplicateKey as e:
@@ -275,7 +357,7 @@ def _parse_text(text: str, source: str, default_name: str) -> MapSpec:
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(e, "problem", None) or str(e)
         raise MapError(f"{source}: YAML syntax error{where}: {problem}") from None
-    return parse_map(data, source, default_name)
+    return parse_map(data, source, default_name, base_dir)
 
 
 # --------------------------------------------------------------------------- lookup
@@ -310,7 +392,7 @@ def load_map(name_or_path: str | os.PathLike) -> MapSpec:
             raise MapError(f"{source}: map file not found") from None
         except (OSError, UnicodeDecodeError) as e:
             raise MapError(f"{source}: cannot read map file: {e}") from None
-        return _parse_text(text, source, path.stem)
+        return _parse_text(text, source, path.stem, path.parent)
     if not isinstance(name_or_path, str):
         raise MapError(f"load_map expects a map name or a path, got {_show(name_or_path)}")
     res = _data_dir().joinpath(name_or_path + ".yaml")
@@ -319,4 +401,4 @@ def load_map(name_or_path: str | os.PathLike) -> MapSpec:
             f"unknown map {name_or_path!r}; available maps: {', '.join(available_maps())} "
             "(or pass a path to a .yaml file)"
         )
-    return _parse_text(res.read_text(encoding="utf-8"), str(res), name_or_path)
+    return _parse_text(res.read_text(encoding="utf-8"), str(res), name_or_path, _data_dir())

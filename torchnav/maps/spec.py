@@ -49,9 +49,11 @@ class MapSpec:
         name: map name (``name:`` in the file, else the file stem).
         source: path of the file it was read from.
         size: ``(w, h)`` in m; the world spans ``[-w/2, w/2] x [-h/2, h/2]``.
-        segments: walls ``(x1, y1, x2, y2)`` in m, ``boundary`` already expanded.
+        segments: walls ``(x1, y1, x2, y2)`` in m: ``walls`` (``boundary`` already expanded), then
+            the edges of ``polygons``.
         circles: fixed circles ``(cx, cy, r)`` in m.
-        boxes: fixed boxes ``(cx, cy, half_x, half_y, yaw)``: HALF extents in m, yaw in rad.
+        boxes: fixed boxes ``(cx, cy, half_x, half_y, yaw)``: HALF extents in m, yaw in rad;
+            ``boxes``, then the boxes covering the ``occupancy`` image.
         random_boxes / random_circles: what the task re-places on reset, or None.
     """
 

@@ -7,9 +7,10 @@
 See docs/line.md for the file format.
 """
 
+from ..maps.occupancy import read_mask
 from .geometry import catmull_rom, fillet_polyline, path_pose, project_on_path, resample, wrap_delta
 from .loader import available_tracks, load_track, parse_track
-from .png import read_mask, skeletonize, track_from_mask
+from .png import skeletonize, track_from_mask
 from .track import Track, TrackError, TrackTensors
 
 __all__ = [

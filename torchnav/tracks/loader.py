@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..maps.loader import _Ctx, _DuplicateKey, _is_number, _Loader, _mapping, _number, _show, _vector
+from ..maps.loader import _bool, _Ctx, _DuplicateKey, _is_number, _Loader, _mapping, _number, _show, _vector
 from .geometry import CurveError, catmull_rom, fillet_polyline, resample
 from .track import Track, TrackError
 
@@ -41,12 +41,6 @@ def _points(ctx: _Ctx, v: Any, key: str, min_n: int) -> np.ndarray:
     if not ok:
         raise ctx.fail(key, f"expected a list of at least {min_n} [x, y] points in m, got {_show(v)}")
     return np.asarray(v, dtype=np.float64)
-
-
-def _bool(ctx: _Ctx, v: Any, key: str) -> bool:
-    if not isinstance(v, bool):
-        raise ctx.fail(key, f"expected true or false, got {_show(v)}")
-    return v
 
 
 def _curve(ctx: _Ctx, v: dict, key: str, spacing: float, force_closed: bool = False) -> tuple[np.ndarray, bool]:

@@ -21,22 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from ..maps.occupancy import ImageError, read_mask
 from .geometry import resample
 from .track import Track, TrackError
-
-
-def read_mask(path: str | os.PathLike, threshold: float = 0.5, invert: bool = False) -> np.ndarray:
-    """``(H, W)`` bool line mask from a PNG (grey level > ``threshold`` in [0, 1]; ``invert`` for dark lines)."""
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with Image.open(path) as im:
-            grey = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
-    except FileNotFoundError:
-        raise TrackError(f"{path}: image file not found") from None
-    except (OSError, UnidentifiedImageError) as e:
-        raise TrackError(f"{path}: cannot read image: {e}") from None
-    return (grey < threshold) if invert else (grey > threshold)
 
 
 def skeletonize(mask: np.ndarray) -> np.ndarray:
@@ -154,7 +141,8 @@ def track_from_mask(
 
 def track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, walls: np.ndarray, base_dir: Any) -> Track:
     """The ``image:`` form of a track file (called by the loader with the validated mapping)."""
-    from .loader import _bool, _curve, _mapping, _number, _vector
+    from ..maps.loader import _bool, _grey_level, _mapping, _number, _vector
+    from .loader import _curve
 
     img = d["image"]
     if not isinstance(img, str):
@@ -162,9 +150,7 @@ def track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, wall
     path = Path(img) if base_dir is None or os.path.isabs(img) else Path(base_dir) / img
     res = _number(ctx, d["resolution"], "resolution", "pos")
     origin = _vector(ctx, d["origin"], "origin", 2) if "origin" in d else None
-    thr = _number(ctx, d.get("threshold", 0.5), "threshold", "nonneg")
-    if not 0 < thr < 1:
-        raise ctx.fail("threshold", f"expected a grey level in (0, 1), got {thr!r}")
+    thr = _grey_level(ctx, d.get("threshold", 0.5), "threshold")
     invert = _bool(ctx, d.get("invert", False), "invert")
     width = _number(ctx, d["width"], "width", "pos") if "width" in d else None
     lap = None
@@ -173,7 +159,7 @@ def track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, wall
         lap, _ = _curve(ctx, lv, "lap", spacing, force_closed=True)
     try:
         mask = read_mask(path, thr, invert)
-    except TrackError as e:
+    except ImageError as e:
         raise ctx.fail("image", str(e)) from None
     if not math.isfinite(res):
         raise ctx.fail("resolution", "must be finite")
