@@ -24,7 +24,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -66,11 +66,44 @@ def scenarios(cfg: NavConfig, n: int, seed: int) -> dict[str, torch.Tensor]:
     env = NavEnv(cfg, num_envs=n, seed=seed)
     env.reset()
     s = env.state
-    return {"start": s.start, "goal": s.goal, "boxes": s.world.boxes, "circles": s.world.circles}
+    return {"start": s.start, "goal": s.goal, "segments": s.world.segments, "boxes": s.world.boxes, "circles": s.world.circles}
 
 
 def same_scenarios(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
     return all(a[k].shape == b[k].shape and torch.equal(a[k], b[k]) for k in a)
+
+
+def method_configs(methods: list[tuple[str, Any, NavConfig | None]], base: NavConfig, cell: Callable[[NavConfig], NavConfig],
+                   n: int, seed: int, where: str) -> list[NavConfig]:
+    """Each method's config for one cell of a comparison: ``cell(own)`` for a checkpoint,
+    ``cell(base)`` for a controller. A checkpoint whose cell config gives other scenarios
+    than ``cell(base)`` over the first ``n`` episodes at ``seed`` is refused (``ValueError``)."""
+    cfg, ref, out = cell(base), None, []
+    for name, _, own in methods:
+        mcfg = cfg if own is None else cell(own)
+        if mcfg != cfg:
+            ref = scenarios(cfg, n, seed) if ref is None else ref
+            if not same_scenarios(ref, scenarios(mcfg, n, seed)):
+                raise ValueError(f"{name}: its task config gives other scenarios than the first checkpoint's on {where} "
+                                 "(robot radius, reset or map settings differ); compare it in a separate run")
+        out.append(mcfg)
+    return out
+
+
+def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed: int, device: str,
+                    where: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """``summarize`` of ``episodes`` episodes of ``policy`` on ``cfg`` and, for a planner, its statistics
+    (plans, paths not found, ms per plan); prints one progress line."""
+    if hasattr(policy, "stats"):
+        policy.stats = {"plans": 0, "no_path": 0, "seconds": 0.0}
+    t0 = time.perf_counter()
+    s = summarize(run_episodes(policy, cfg, episodes, seed=seed, device=device))
+    stats = getattr(policy, "stats", None)
+    if stats is not None:
+        stats = {**stats, "ms_per_plan": 1e3 * stats["seconds"] / max(stats["plans"], 1)}
+    print(f"[{where}] {name:<22} success {_pct(s, 'success'):<20} collision {_pct(s, 'collision'):<20} "
+          f"timeout {_pct(s, 'timeout'):<20} steps {_mean(s, 'steps_to_goal', 1):<20} ({time.perf_counter() - t0:.1f} s)", flush=True)
+    return s, stats
 
 
 @torch.no_grad()
@@ -199,24 +232,12 @@ def main(argv: list[str]) -> dict[str, Any]:
     runs: dict[str, dict[str, Any]] = {}
     first_chunk = min(a.episodes, 4096)  # run_episodes' first batch
     for m in a.maps:
-        cfg = eval_config(base, map=m)
-        ref = scenarios(cfg, first_chunk, a.seed)
+        cfgs = method_configs(methods, base, lambda c: eval_config(c, map=m), first_chunk, a.seed, m)
         runs[m] = {}
-        for name, policy, own in methods:
-            mcfg = cfg if own is None else eval_config(own, map=m)
-            if own is not None and not same_scenarios(ref, scenarios(mcfg, first_chunk, a.seed)):
-                raise ValueError(f"{name}: its task config gives other scenarios than the first checkpoint's on {m} "
-                                 "(robot radius, reset or map settings differ); compare it in a separate run")
-            if hasattr(policy, "stats"):
-                policy.stats = {"plans": 0, "no_path": 0, "seconds": 0.0}
-            t0 = time.perf_counter()
-            s = summarize(run_episodes(policy, mcfg, a.episodes, seed=a.seed, device=a.device))
-            results[name][m] = s
-            stats = getattr(policy, "stats", None)
+        for (name, policy, _), mcfg in zip(methods, cfgs):
+            results[name][m], stats = evaluate_method(name, policy, mcfg, a.episodes, a.seed, a.device, m)
             if stats is not None:
-                planning.setdefault(name, {})[m] = {**stats, "ms_per_plan": 1e3 * stats["seconds"] / max(stats["plans"], 1)}
-            print(f"[{m}] {name:<22} success {_pct(s, 'success'):<20} collision {_pct(s, 'collision'):<20} "
-                  f"timeout {_pct(s, 'timeout'):<20} steps {_mean(s, 'steps_to_goal', 1):<20} ({time.perf_counter() - t0:.1f} s)", flush=True)
+                planning.setdefault(name, {})[m] = stats
             if a.scenarios > 0:
                 runs[m][name] = trajectories(policy, mcfg, a.scenarios, a.seed, a.device)
     md = markdown(results, a.episodes, a.seed)
