@@ -15,7 +15,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Composite, Unbounded
 
 from ..config import merge, to_dict
-from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes
+from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes, after_family_episodes
 from .base import BatchedEnv
 
 
@@ -27,7 +27,7 @@ class NavEnv(BatchedEnv):
         super().__init__(num_envs, device, seed)
         self.cfg = cfg
         self.task = NavTask(cfg, num_envs, device=self.device)
-        self.curriculum = CurriculumState.initial(cfg.curriculum, device=self.device)
+        self.curriculum = CurriculumState.initial(cfg.curriculum, device=self.device, worlds=cfg.worlds)
         self._state: NavState | None = None
         self._make_specs()
 
@@ -77,7 +77,9 @@ class NavEnv(BatchedEnv):
         action = self._checked_action(tensordict)
         self._state, out = self.task.step(self._state, action, self._generator)
         terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
-        self.curriculum = after_episodes(self.curriculum, self.cfg.curriculum, (terminated | truncated)[:, 0], out["success"])
+        done = (terminated | truncated)[:, 0]
+        self.curriculum = after_episodes(self.curriculum, self.cfg.curriculum, done, out["success"])
+        self.curriculum = after_family_episodes(self.curriculum, self.cfg.worlds, done, out["success"], self._state.family)
         td = self._outputs(self._state, out["observation"], out["terms"], out["success"][:, None], out["collision"][:, None])
         td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
         return td

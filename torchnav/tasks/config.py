@@ -93,6 +93,20 @@ class ResetConfig:
 
 
 @dataclass(frozen=True)
+class WorldsConfig:
+    """Procedural worlds (docs/worlds.md) instead of one map: every episode draws a family,
+    a world of that family at the family's difficulty, a start and a reachable goal."""
+
+    families: dict[str, float] = field(default_factory=dict)  # family -> weight ("rooms", ..., "map:arena"); empty: `map`
+    difficulty: float = 0.5  # in [0, 1]: the fixed difficulty, or the starting one with `curriculum`
+    curriculum: bool = False  # success-gated difficulty, one level per family
+    success_threshold: float = 0.8  # raise a family's difficulty when its success average exceeds this
+    difficulty_step: float = 0.05  # added per finished episode batch while above the threshold
+    success_smoothing: float = 0.02  # weight of each finished episode in its family's success average
+    max_difficulty: float = 1.0  # cap of the curriculum
+
+
+@dataclass(frozen=True)
 class NavConfig:
     map: str = "arena"  # shipped map name or path to a map YAML
     max_steps: int = 500  # steps before truncation
@@ -105,9 +119,11 @@ class NavConfig:
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     action: ActionConfig = field(default_factory=ActionConfig)
     reset: ResetConfig = field(default_factory=ResetConfig)
+    worlds: WorldsConfig = field(default_factory=WorldsConfig)
 
     def __post_init__(self) -> None:
         c = self.curriculum
+        w = self.worlds
         checks = [
             (self.max_steps >= 1, "max_steps must be >= 1"),
             (self.goal_tolerance > 0, "goal_tolerance must be > 0 m"),
@@ -121,10 +137,17 @@ class NavConfig:
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),
             (self.reset.pool >= 0, "reset.pool must be >= 0"),
             (self.reset.start_clearance >= 0 and self.reset.goal_clearance >= 0, "reset clearances must be >= 0 m"),
+            (0 <= w.difficulty <= w.max_difficulty <= 1, "worlds needs 0 <= difficulty <= max_difficulty <= 1"),
+            (0 < w.success_threshold < 1 and w.difficulty_step >= 0, "worlds needs 0 < success_threshold < 1 and difficulty_step >= 0"),
+            (0 < w.success_smoothing <= 1, "worlds.success_smoothing must be in (0, 1]"),
+            (all(v >= 0 for v in w.families.values()) and (not w.families or sum(w.families.values()) > 0),
+             f"worlds.families weights must be >= 0 with a positive sum, got {w.families}"),
         ]
         for ok, msg in checks:
             if not ok:
                 raise ConfigError(msg)
+        for name in w.families:
+            _check_family(name)
         self.sim_params()  # validates robot and lidar fields
 
     @classmethod
@@ -147,3 +170,16 @@ class NavConfig:
             )
         except ValueError as e:
             raise ConfigError(f"robot/lidar: {e}") from e
+
+
+def _check_family(name: str) -> None:
+    from ..maps import MapError, available_maps, load_map
+    from ..worlds import FAMILIES, MAP_PREFIX
+
+    if name.startswith(MAP_PREFIX):
+        try:
+            load_map(name[len(MAP_PREFIX):])
+        except MapError as e:
+            raise ConfigError(f"worlds.families: {name!r}: {e}") from None
+    elif name not in FAMILIES:
+        raise ConfigError(f"worlds.families: unknown family {name!r}; known: {', '.join(FAMILIES)}, or {MAP_PREFIX}<map> with a map of {available_maps()}")

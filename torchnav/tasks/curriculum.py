@@ -1,13 +1,14 @@
-"""The bootstrapped goal radius as explicit, savable state (0-d tensors on the env device)."""
+"""Curricula as explicit, savable state on the env device: the bootstrapped goal radius
+(0-d tensors) and, with procedural worlds, one difficulty level per world family."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
 
-from .config import CurriculumConfig
+from .config import CurriculumConfig, WorldsConfig
 
 
 @dataclass
@@ -15,18 +16,23 @@ class CurriculumState:
     radius: Tensor  # 0-d, m: current maximum goal distance
     placements: Tensor  # 0-d int64: goals placed so far
     success_rate: Tensor  # 0-d: exponential average of episode success (mode "success")
+    difficulty: Tensor  # (F,) in [0, 1]: each world family's difficulty (F = 0 without worlds)
+    family_success: Tensor  # (F,): each family's exponential average of episode success
 
     @classmethod
-    def initial(cls, cfg: CurriculumConfig, device=None, dtype=torch.float32) -> "CurriculumState":
+    def initial(cls, cfg: CurriculumConfig, device=None, dtype=torch.float32, worlds: WorldsConfig | None = None) -> "CurriculumState":
         r0 = cfg.max_radius if cfg.mode == "off" else cfg.init_radius
+        f = len(worlds.families) if worlds is not None else 0
         return cls(
             radius=torch.tensor(r0, dtype=dtype, device=device),
             placements=torch.tensor(0, dtype=torch.int64, device=device),
             success_rate=torch.tensor(0.0, dtype=dtype, device=device),
+            difficulty=torch.full((f,), worlds.difficulty if f else 0.0, dtype=dtype, device=device),
+            family_success=torch.zeros(f, dtype=dtype, device=device),
         )
 
     def state_dict(self) -> dict[str, Tensor]:
-        return {"radius": self.radius.clone(), "placements": self.placements.clone(), "success_rate": self.success_rate.clone()}
+        return {k: getattr(self, k).clone() for k in ("radius", "placements", "success_rate", "difficulty", "family_success")}
 
     def load_state_dict(self, sd: dict[str, Tensor]) -> None:
         missing = {"radius", "placements", "success_rate"} - set(sd)
@@ -35,6 +41,11 @@ class CurriculumState:
         self.radius = sd["radius"].to(self.radius)
         self.placements = sd["placements"].to(self.placements)
         self.success_rate = sd["success_rate"].to(self.success_rate)
+        for k in ("difficulty", "family_success"):  # absent from checkpoints made before procedural worlds
+            if k in sd:
+                if sd[k].shape != getattr(self, k).shape:
+                    raise ValueError(f"curriculum state {k!r} has shape {tuple(sd[k].shape)}, expected {tuple(getattr(self, k).shape)} (one per world family)")
+                setattr(self, k, sd[k].to(getattr(self, k)))
 
 
 def after_placements(cur: CurriculumState, cfg: CurriculumConfig, n_placed: Tensor) -> CurriculumState:
@@ -43,7 +54,7 @@ def after_placements(cur: CurriculumState, cfg: CurriculumConfig, n_placed: Tens
     radius = cur.radius
     if cfg.mode == "growth":
         radius = (cfg.init_radius + cfg.growth * placements.to(radius.dtype)).clamp(max=cfg.max_radius)
-    return CurriculumState(radius=radius, placements=placements, success_rate=cur.success_rate)
+    return replace(cur, radius=radius, placements=placements)
 
 
 def after_episodes(cur: CurriculumState, cfg: CurriculumConfig, done: Tensor, success: Tensor) -> CurriculumState:
@@ -58,4 +69,21 @@ def after_episodes(cur: CurriculumState, cfg: CurriculumConfig, done: Tensor, su
     rate = torch.where(n > 0, keep * cur.success_rate + (1 - keep) * mean, cur.success_rate)
     grow = (n > 0) & (rate > cfg.success_threshold)
     radius = torch.where(grow, cur.radius + cfg.success_step, cur.radius).clamp(max=cfg.max_radius)
-    return CurriculumState(radius=radius, placements=cur.placements, success_rate=rate)
+    return replace(cur, radius=radius, success_rate=rate)
+
+
+def after_family_episodes(cur: CurriculumState, cfg: WorldsConfig, done: Tensor, success: Tensor, family: Tensor) -> CurriculumState:
+    """With ``cfg.curriculum``: fold finished episodes ``done`` ``(B,)`` of world families
+    ``family`` ``(B,)`` (indices into ``cfg.families``) into each family's success average,
+    and raise a family's difficulty by ``difficulty_step`` while its average exceeds the threshold."""
+    if not cfg.curriculum or cur.difficulty.numel() == 0:
+        return cur
+    dtype = cur.family_success.dtype
+    hot = torch.nn.functional.one_hot(family, cur.difficulty.numel()).to(dtype) * done.to(dtype)[:, None]  # (B, F)
+    n = hot.sum(0)
+    mean = (hot * success.to(dtype)[:, None]).sum(0) / n.clamp(min=1)
+    keep = (1.0 - cfg.success_smoothing) ** n
+    rate = keep * cur.family_success + (1 - keep) * mean
+    grow = (n > 0) & (rate > cfg.success_threshold)
+    difficulty = torch.where(grow, cur.difficulty + cfg.difficulty_step, cur.difficulty).clamp(max=cfg.max_difficulty)
+    return replace(cur, difficulty=difficulty, family_success=rate)

@@ -14,7 +14,7 @@ from tensordict import tensorclass
 from torch import Tensor
 
 from ..maps import load_map
-from ..sim import SimState, World, init_state, safe_hypot, sectorize, wrap_angle
+from ..sim import SimState, World, init_state, pad_world, safe_hypot, sectorize, wrap_angle
 from ..sim import step as sim_step
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
@@ -33,6 +33,8 @@ class NavState:
         ep_return, ep_path, straight: ``(B,)`` running return, path length (m) and
             start-goal distance (m). ep_terms: ``(B, T)`` running sum of each reward term.
         history: ``(B, H, D)`` the last H observations, newest last.
+        family: ``(B,)`` int64 index of the episode's world family in ``cfg.worlds.families``
+            (0 without procedural worlds). difficulty: ``(B,)`` its difficulty in [0, 1].
     """
 
     sim: SimState
@@ -46,6 +48,8 @@ class NavState:
     straight: Tensor
     ep_terms: Tensor
     history: Tensor
+    family: Tensor
+    difficulty: Tensor
 
 
 class NavTask:
@@ -67,6 +71,10 @@ class NavTask:
         self.obs_size = self.obs_dim * cfg.observation.history
         # Fixed obstacles with every random slot masked off; resets fill the random slots.
         self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
+        self.families = tuple(cfg.worlds.families)  # procedural worlds instead of the map when non-empty
+        if self.families:
+            self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
+            self._slots = self._world_slots()
         scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
@@ -116,15 +124,20 @@ class NavTask:
     def _fresh(self, idx: Tensor, cur: CurriculumState, gen: torch.Generator) -> NavState:
         """New episodes for envs ``idx`` ``(n,)``."""
         c, rc = self.cfg, self.cfg.reset
-        world = self.base_world[idx]
-        start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
-        goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
-        world = place_random_objects(
-            world, self.spec, start[:, :2], goal, rc.candidates, gen,
-            start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance,
-        )
-        sim = init_state(start, world, self.params)
         n = idx.shape[0]
+        if self.families:
+            world, start, goal, family, difficulty = self._generated(n, cur, gen)
+        else:
+            world = self.base_world[idx]
+            start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
+            goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
+            world = place_random_objects(
+                world, self.spec, start[:, :2], goal, rc.candidates, gen,
+                start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance,
+            )
+            family = torch.zeros(n, dtype=torch.int64, device=self.device)
+            difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
+        sim = init_state(start, world, self.params)
         obs = self.observe(sim, goal)
         dist, _ = self.goal_vector(sim.pose, goal)
         zeros = torch.zeros(n, dtype=self.dtype, device=self.device)
@@ -134,8 +147,26 @@ class NavTask:
             goal_dist=dist, ep_return=zeros, ep_path=zeros.clone(), straight=dist.detach().clone(),
             ep_terms=torch.zeros(n, len(self.term_names), dtype=self.dtype, device=self.device),
             history=obs[:, None, :].expand(n, self.cfg.observation.history, self.obs_dim).clone(),
-            batch_size=[n], device=self.device,
+            family=family, difficulty=difficulty, batch_size=[n], device=self.device,
         )
+
+    def _world_slots(self) -> dict[str, int]:
+        """Obstacle slots per kind that fit a world of every configured family (each family's
+        generator uses the same slot counts at every difficulty)."""
+        from ..worlds import make_worlds
+
+        probe = [make_worlds(f, 1, 0.0, torch.Generator(self.device).manual_seed(0), self.device, self.dtype, self.cfg.robot.radius).world for f in self.families]
+        return {k: max(getattr(w, k).shape[1] for w in probe) for k in ("segments", "circles", "boxes")}
+
+    def _generated(self, n: int, cur: CurriculumState, gen: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor]:
+        """``n`` procedural episodes: padded worlds, starts ``(n, 3)``, goals ``(n, 2)``, family
+        indices ``(n,)`` and difficulties ``(n,)``, each family at its curriculum difficulty."""
+        from ..worlds import mix_worlds
+
+        levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
+        batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, gen, self.device, self.dtype, self.cfg.robot.radius)
+        family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
+        return pad_world(batch.world, **self._slots), batch.start, batch.goal, family, batch.difficulty
 
     def initial_state(self, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
         """Fresh episodes in every env."""
@@ -153,7 +184,8 @@ class NavTask:
         idx = mask.reshape(-1).nonzero().squeeze(-1)
         if idx.numel() == 0:
             return state, cur
-        fresh = self._fresh(idx, cur, gen) if self.cfg.reset.pool == 0 else self._from_pool(idx.numel(), cur, gen)
+        pooled = self.cfg.reset.pool > 0 or self.families  # generating worlds costs the same for 1 env or 1,000
+        fresh = self._from_pool(idx.numel(), cur, gen) if pooled else self._fresh(idx, cur, gen)
         # Out of place, leaf by leaf: callers may hold views of the old state.
         state = state.apply(lambda old, new: old.index_put((idx,), new), fresh)
         return state, after_placements(cur, self.cfg.curriculum, torch.tensor(idx.numel(), device=self.device))
@@ -161,14 +193,16 @@ class NavTask:
     def _from_pool(self, n: int, cur: CurriculumState, gen: torch.Generator) -> NavState:
         """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short.
 
-        Every env of a task shares the map's fixed world, so episodes sampled for any
-        env fit every env. Sampling many at once costs about as much as sampling a
-        few (the reset samplers are bound by per-operation overhead), so with a pool
-        a reset costs an index copy most of the time. Goals come from the curriculum
-        radius at the time the pool was filled.
+        Every env of a task shares the map's fixed world (or, with procedural worlds,
+        every episode carries its own world padded to the same slots), so episodes
+        sampled for any env fit every env. Sampling many at once costs about as much
+        as sampling a few (the samplers are bound by per-operation overhead), so with
+        a pool a reset costs an index copy most of the time. Goals and difficulties
+        come from the curriculum at the time the pool was filled. With procedural
+        worlds a pool is always used (``reset.pool`` 0 means ``num_envs`` episodes).
         """
         if self._pool is None or self._pool_pos + n > self._pool.batch_size[0]:
-            size = max(self.cfg.reset.pool, n)
+            size = max(self.cfg.reset.pool or self.num_envs, n)
             self._pool = self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, gen)
             self._pool_pos = 0
         out = self._pool[self._pool_pos : self._pool_pos + n]
@@ -204,7 +238,7 @@ class NavTask:
             ep_return=state.ep_return + reward,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
             straight=state.straight, ep_terms=state.ep_terms + stacked, history=history,
-            batch_size=state.batch_size, device=state.device,
+            family=state.family, difficulty=state.difficulty, batch_size=state.batch_size, device=state.device,
         )
         out = {
             "observation": history.reshape(history.shape[0], -1), "reward": reward, "terms": terms,

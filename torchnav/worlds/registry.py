@@ -78,7 +78,7 @@ def make_worlds(
 def mix_worlds(
     num_envs: int,
     families: Sequence[str] | Mapping[str, float],
-    difficulty: float | Tensor,
+    difficulty: float | Tensor | Mapping[str, float | Tensor],
     generator: torch.Generator,
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
@@ -87,7 +87,9 @@ def mix_worlds(
     """``num_envs`` worlds whose family is drawn per env from ``families``.
 
     ``families``: names as for :func:`make_worlds` (drawn uniformly) or a mapping of
-    name to weight (drawn in proportion). Each family is generated once for all of
+    name to weight (drawn in proportion). ``difficulty``: as for :func:`make_worlds`, or a
+    mapping of family name to its own difficulty (a number or 0-d tensor; a per-family
+    curriculum). Each family is generated once for all of
     its envs; obstacle slots are padded to the largest count of each kind
     (:func:`~torchnav.sim.cat_worlds`), and envs keep the order of the draw.
     """
@@ -98,12 +100,19 @@ def mix_worlds(
     if min(weights) < 0 or sum(weights) <= 0:
         raise ValueError(f"family weights must be >= 0 with a positive sum, got {dict(zip(names, weights))}")
     dev = _device(generator, device)
-    d = as_difficulty(difficulty, num_envs, dev, dtype)
+    if isinstance(difficulty, Mapping):
+        missing = [k for k in names if k not in difficulty]
+        if missing:
+            raise ValueError(f"mix_worlds: no difficulty for families {missing}")
+        d = None
+    else:
+        d = as_difficulty(difficulty, num_envs, dev, dtype)
     drawn = torch.multinomial(torch.tensor(weights, device=dev), num_envs, replacement=True, generator=generator)
     parts, order = [], []
     for k, name in enumerate(names):
         idx = (drawn == k).nonzero()[:, 0]
         if idx.numel():
-            parts.append(make_worlds(name, idx.numel(), d[idx], generator, dev, dtype, robot_radius))
+            level = difficulty[name] if d is None else d[idx]
+            parts.append(make_worlds(name, idx.numel(), level, generator, dev, dtype, robot_radius))
             order.append(idx)
     return cat_batches(parts).select(torch.cat(order).argsort())

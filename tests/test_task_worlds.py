@@ -1,0 +1,79 @@
+"""Navigation on procedural worlds: episodes drawn per family, the per-family difficulty
+curriculum, its saved state, and configuration errors."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torchrl.envs.utils import check_env_specs
+
+from torchnav.config import ConfigError
+from torchnav.envs import NavEnv
+from torchnav.sim import disc_clearance
+from torchnav.tasks import CurriculumState, NavConfig, WorldsConfig, after_family_episodes
+
+FAMILIES = {"forest": 1.0, "corridors": 1.0, "map:arena": 1.0}
+
+
+def worlds_cfg(**worlds) -> NavConfig:
+    return NavConfig.from_dict({"worlds": {"families": FAMILIES, "difficulty": 0.3, **worlds}, "max_steps": 50})
+
+
+def test_env_draws_every_family_with_free_starts_and_passes_specs():
+    env = NavEnv(worlds_cfg(), num_envs=24, seed=0)
+    check_env_specs(env)
+    env.reset()
+    s = env.state
+    assert set(s.family.tolist()) == {0, 1, 2} and s.difficulty.eq(0.3).all()
+    assert (disc_clearance(s.sim.pose, s.world, 0.0) > env.cfg.robot.radius).all()
+    # Envs of different families hold different worlds in one batch.
+    forest, corridors = (s.family == 0).nonzero()[0, 0], (s.family == 1).nonzero()[0, 0]
+    assert s.world.circle_mask[forest].any() and not s.world.circle_mask[corridors].any()
+    td = env.rollout(60, break_when_any_done=False)  # resets come from the pool of generated episodes
+    assert td["next", "done"].any()
+
+
+def test_same_seed_same_episodes():
+    a, b = NavEnv(worlds_cfg(), num_envs=8, seed=3), NavEnv(worlds_cfg(), num_envs=8, seed=3)
+    a.reset(), b.reset()
+    assert torch.equal(a.state.start, b.state.start) and torch.equal(a.state.world.segments, b.state.world.segments)
+    c = NavEnv(worlds_cfg(), num_envs=8, seed=4)
+    c.reset()
+    assert not torch.equal(a.state.start, c.state.start)
+
+
+def test_family_curriculum_raises_only_the_families_above_threshold():
+    cfg = WorldsConfig(families={"forest": 1.0, "rooms": 1.0}, difficulty=0.2, curriculum=True, success_threshold=0.5, difficulty_step=0.1, success_smoothing=1.0)
+    cur = CurriculumState.initial(NavConfig().curriculum, worlds=cfg)
+    done = torch.tensor([True, True, True, False])
+    success = torch.tensor([True, True, False, True])
+    family = torch.tensor([0, 0, 1, 1])
+    cur = after_family_episodes(cur, cfg, done, success, family)
+    assert cur.difficulty.tolist() == pytest.approx([0.3, 0.2]) and cur.family_success.tolist() == pytest.approx([1.0, 0.0])
+    off = WorldsConfig(families=cfg.families, curriculum=False)
+    assert after_family_episodes(cur, off, done, success, family) is cur
+
+
+def test_curriculum_state_round_trips_and_old_checkpoints_load():
+    env = NavEnv(worlds_cfg(curriculum=True), num_envs=4, seed=0)
+    env.curriculum.difficulty = torch.tensor([0.4, 0.5, 0.6])
+    sd = env.state_dict()
+    fresh = NavEnv(worlds_cfg(curriculum=True), num_envs=4, seed=0)
+    fresh.load_state_dict(sd)
+    assert fresh.curriculum.difficulty.tolist() == pytest.approx([0.4, 0.5, 0.6])
+    old = {k: v for k, v in sd["curriculum"].items() if k not in ("difficulty", "family_success")}
+    fresh.curriculum.load_state_dict(old)  # a checkpoint from before procedural worlds
+    with pytest.raises(ValueError, match="one per world family"):
+        NavEnv(NavConfig(), num_envs=4).curriculum.load_state_dict(sd["curriculum"])
+
+
+@pytest.mark.parametrize("worlds,match", [
+    ({"families": {"forset": 1.0}}, "unknown family 'forset'"),
+    ({"families": {"map:nowhere": 1.0}}, "map:nowhere"),
+    ({"families": {"forest": -1.0}}, "weights must be >= 0"),
+    ({"families": {"forest": 1.0}, "difficulty": 1.5}, "difficulty"),
+    ({"families": {"forest": 1.0}, "curriculum": True, "success_threshold": 1.0}, "success_threshold"),
+])
+def test_bad_worlds_config_is_named(worlds, match):
+    with pytest.raises(ConfigError, match=match):
+        NavConfig.from_dict({"worlds": worlds})
