@@ -8,7 +8,7 @@ goals are drawn over the whole map.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import torch
 from tensordict import TensorDictBase
@@ -44,12 +44,24 @@ def mean_interval(x: torch.Tensor, z: float = Z95) -> tuple[float, float, float]
     return (m, m - half, m + half)
 
 
-def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True) -> NavConfig:
-    """``cfg`` for evaluation: optionally another map; with ``anywhere`` the curriculum is off."""
+def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
+                worlds: Mapping[str, Any] | None = None) -> NavConfig:
+    """``cfg`` for evaluation: optionally another map; with ``anywhere`` the curriculum is off.
+
+    ``map`` also turns procedural worlds off, so a policy trained on generated worlds is
+    evaluated on that map. ``worlds``: keys of the ``worlds`` section that replace those
+    of ``cfg`` (``families`` are replaced, not merged), e.g. ``{"families": {"forest":
+    1.0}, "difficulty": 0.5}``; the difficulty curriculum is off.
+    """
+    if map is not None and worlds is not None:
+        raise ValueError("eval_config: give a map or procedural worlds, not both")
     d = to_dict(cfg)
     over: dict[str, Any] = {}
     if map is not None:
         over["map"] = map
+        d["worlds"] = {**d["worlds"], "families": {}}
+    if worlds is not None:
+        d["worlds"] = {**d["worlds"], **worlds, "curriculum": False}
     if anywhere:
         over["curriculum"] = {"mode": "off"}
     return NavConfig.from_dict(merge(d, over))

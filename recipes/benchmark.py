@@ -1,0 +1,263 @@
+"""Benchmark suite: every shipped map and generated worlds of every family at three
+difficulties, the same seeded episodes for any checkpoints and the classical controllers.
+
+    python recipes/benchmark.py checkpoints/td3_arena_actor.pt                 # full suite, 200 episodes a cell
+    python recipes/benchmark.py CKPT_A CKPT_B --episodes 50 --out runs/bench
+    python recipes/benchmark.py --maps arena maze --families forest --levels easy=0.2 hard=0.8 --controllers reactive astar
+
+Cells: each map of ``--maps`` (default every shipped map; goals anywhere, curriculum
+off) and each family of ``--families`` (default ``rooms corridors cave forest open``) at
+each level of ``--levels`` (default ``easy=0.2 medium=0.5 hard=0.8``, a difficulty in
+[0, 1]): every episode of such a cell is a fresh world of that family at that difficulty,
+with the generator's start and reachable goal (curriculum off; docs/worlds.md).
+
+Methods: the checkpoints (each in its own task config; one whose scenarios differ from
+the first's is refused, as in compare.py) and ``--controllers`` (default the memoryless
+``go_to_goal reactive potential_field``, in the first checkpoint's task config). The
+planners ``astar`` and ``rrt`` read the map's spec (its bounds and which obstacles are
+fixed, ``PlannerController.bind``), so they run on map cells only; their generated cells
+read n/a.
+
+Seeds: cell ``i`` plays episodes with env seed ``--seed + 10007 * i`` (default ``--seed``
+1000000), ``i`` its index in the canonical suite: shipped maps in ``available_maps()``
+order, then ``MAX_LEVELS`` slots per family (``FAMILIES`` order) for its level's position
+in ``--levels``. A cell's seed does not depend on which other cells run, so a subset
+reproduces the full suite's figures. The recipes train on env seed ``seed`` (0 in every
+shipped config) and evaluate on ``10000 + seed`` and ``20000 + seed``, compare.py and
+evaluate.py on 20000: the benchmark's seeds (1000000 and up) are disjoint from all of them
+for any training seed below 980000.
+
+Writes to ``--out`` (default runs/benchmark), after every cell: ``results.json`` (every
+summary, each method's exact config and seed per cell, planner statistics),
+``results.md`` (cells x methods: success % with its 95% Wilson interval) and, at the end,
+``heatmap.png`` (methods x cells, success %).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from compare import _pct, evaluate_method, load_methods, method_configs  # noqa: E402
+
+from torchnav.config import ConfigError, to_dict  # noqa: E402
+from torchnav.controllers import CONTROLLERS  # noqa: E402
+from torchnav.evaluation import eval_config  # noqa: E402
+from torchnav.maps import available_maps  # noqa: E402
+from torchnav.tasks import NavConfig  # noqa: E402
+from torchnav.worlds import FAMILIES  # noqa: E402
+
+DEFAULT_LEVELS = ("easy=0.2", "medium=0.5", "hard=0.8")
+DEFAULT_CONTROLLERS = ("go_to_goal", "reactive", "potential_field")
+MAP_ONLY = ("astar", "rrt")  # planners bound to the map's spec (PlannerController.bind)
+DEFAULT_EPISODES = 200
+SEED_BASE, SEED_STRIDE = 1_000_000, 10_007
+MAP_SLOTS, MAX_LEVELS = 100, 16  # canonical cell index: maps in [0, MAP_SLOTS), then MAX_LEVELS per family
+CHECK_EPISODES = 16  # episodes per cell compared before the run to refuse a checkpoint with other scenarios
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One column of the suite: a shipped map, or a family of generated worlds at one difficulty."""
+
+    label: str  # "arena", "forest/hard"
+    kind: str  # "map" or "world"
+    name: str  # map or family name
+    level: str | None  # level name ("hard"), None for a map
+    difficulty: float | None  # in [0, 1], None for a map
+    seed: int  # env seed of the cell's episodes
+
+    def config(self, cfg: NavConfig) -> NavConfig:
+        """``cfg`` evaluated on this cell (goals anywhere, every curriculum off)."""
+        if self.kind == "map":
+            return eval_config(cfg, map=self.name)
+        return eval_config(cfg, worlds={"families": {self.name: 1.0}, "difficulty": self.difficulty})
+
+
+def parse_levels(items: list[str]) -> dict[str, float]:
+    """``["easy=0.2", ...]`` -> ``{"easy": 0.2, ...}``; raises ``ValueError`` naming a bad item."""
+    levels: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name or "/" in name:
+            raise ValueError(f"--levels: expected NAME=DIFFICULTY (e.g. hard=0.8), got {item!r}")
+        try:
+            d = float(value)
+        except ValueError:
+            raise ValueError(f"--levels: {item!r}: {value!r} is not a number") from None
+        if not 0.0 <= d <= 1.0:
+            raise ValueError(f"--levels: {item!r}: difficulty must be in [0, 1]")
+        if name in levels:
+            raise ValueError(f"--levels: level {name!r} given twice")
+        levels[name] = d
+    if len(levels) > MAX_LEVELS:
+        raise ValueError(f"--levels: at most {MAX_LEVELS} levels, got {len(levels)}")
+    return levels
+
+
+def suite(maps: list[str], families: list[str], levels: dict[str, float], seed: int) -> list[Cell]:
+    """The cells in run order (maps, then each family at each level), each with its seed."""
+    shipped, fams = available_maps(), list(FAMILIES)
+    cells = [Cell(m, "map", m, None, None, seed + SEED_STRIDE * shipped.index(m)) for m in maps]
+    for f in families:
+        for k, (level, d) in enumerate(levels.items()):
+            index = MAP_SLOTS + MAX_LEVELS * fams.index(f) + k
+            cells.append(Cell(f"{f}/{level}", "world", f, level, d, seed + SEED_STRIDE * index))
+    return cells
+
+
+def runs_on(method: str, cell: Cell) -> bool:
+    """Whether ``method`` is evaluated on ``cell`` (the planners only on maps)."""
+    return cell.kind == "map" or method not in MAP_ONLY
+
+
+def markdown(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int) -> str:
+    """One Markdown table: a row per cell, a column per method, success % [95% Wilson interval]."""
+    methods = list(results)
+    lines = [
+        f"Success % [95% Wilson interval], {episodes} episodes per cell; seeds per cell in results.json "
+        "(n/a: planners need a map's spec; –: not run yet).",
+        "",
+        "| cell | seed | " + " | ".join(methods) + " |",
+        "|---|---:|" + "---:|" * len(methods),
+    ]
+    for c in cells:
+        row = []
+        for m in methods:
+            s = results[m].get(c.label)
+            row.append(_pct(s, "success") if s else "n/a" if not runs_on(m, c) else "–")
+        lines.append(f"| {c.label} | {c.seed} | " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def heatmap(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int, seed: int):
+    """Methods x cells, coloured and annotated by success % (interval below); grey: not run."""
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure
+
+    methods = list(results)
+    rate = np.full((len(methods), len(cells)), np.nan)
+    for i, m in enumerate(methods):
+        for j, c in enumerate(cells):
+            if c.label in results[m]:
+                rate[i, j] = 100 * results[m][c.label]["success"]["rate"]
+    cmap = colormaps["RdYlGn"].with_extremes(bad="0.85")
+    fig = Figure(figsize=(max(6.0, 2.2 + 0.8 * len(cells)), 1.6 + 0.6 * len(methods)))
+    ax = fig.add_subplot()
+    im = ax.imshow(np.ma.masked_invalid(rate), cmap=cmap, vmin=0, vmax=100, aspect="auto")
+    for i, m in enumerate(methods):
+        for j, c in enumerate(cells):
+            if np.isnan(rate[i, j]):
+                ax.text(j, i, "n/a", ha="center", va="center", fontsize=8, color="0.4")
+                continue
+            lo, hi = (100 * x for x in results[m][c.label]["success"]["ci95"])
+            r, g, b, _ = cmap(rate[i, j] / 100)
+            ink = "white" if 0.299 * r + 0.587 * g + 0.114 * b < 0.5 else "black"
+            ax.text(j, i - 0.12, f"{rate[i, j]:.0f}", ha="center", va="center", fontsize=10, color=ink)
+            ax.text(j, i + 0.24, f"{lo:.0f}–{hi:.0f}", ha="center", va="center", fontsize=6.5, color=ink)
+    ax.set_xticks(range(len(cells)), [c.label for c in cells], rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(len(methods)), methods, fontsize=8)
+    for j in range(1, len(cells)):  # separate the maps and each family's levels
+        if cells[j].kind != cells[j - 1].kind or (cells[j].kind == "world" and cells[j].name != cells[j - 1].name):
+            ax.axvline(j - 0.5, color="white", lw=3)
+    fig.colorbar(im, ax=ax, fraction=0.025, pad=0.01).set_label("success %", fontsize=8)
+    ax.set_title(f"Success % and its 95% Wilson interval, {episodes} episodes per cell, seed base {seed}", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def document(a: argparse.Namespace, levels: dict[str, float], cells: list[Cell], methods: list, cfgs: dict,
+             results: dict, planning: dict, complete: bool) -> dict[str, Any]:
+    """Everything ``results.json`` holds: options, cells with each method's exact config, summaries."""
+    return {
+        "complete": complete, "episodes": a.episodes, "seed": a.seed, "levels": levels,
+        "checkpoints": a.checkpoints, "methods": [n for n, _, _ in methods],
+        "cells": [{**asdict(c), "configs": {n: to_dict(cfg) for n, cfg in cfgs[c.label].items()}} for c in cells],
+        "results": results, "planning": planning,
+    }
+
+
+def main(argv: list[str]) -> dict[str, Any]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("checkpoints", nargs="*", help="actor.pt / checkpoint.pt files of navigation policies")
+    p.add_argument("--maps", nargs="*", default=None, help="shipped maps (default all; none: --maps)")
+    p.add_argument("--families", nargs="*", default=None, help=f"world families (default all: {' '.join(FAMILIES)}; none: --families)")
+    p.add_argument("--levels", nargs="+", default=list(DEFAULT_LEVELS), help=f"NAME=DIFFICULTY (default {' '.join(DEFAULT_LEVELS)})")
+    p.add_argument("--controllers", nargs="*", default=list(DEFAULT_CONTROLLERS),
+                   help=f"controllers (default {' '.join(DEFAULT_CONTROLLERS)}; any of {' '.join(CONTROLLERS)}; none: --controllers)")
+    p.add_argument("--episodes", type=int, default=DEFAULT_EPISODES, help=f"episodes per method and cell (default {DEFAULT_EPISODES})")
+    p.add_argument("--seed", type=int, default=SEED_BASE, help=f"seed of the first cell (default {SEED_BASE}); cell i adds {SEED_STRIDE} * i")
+    p.add_argument("--out", default="runs/benchmark", help="output directory (default runs/benchmark)")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--threads", type=int, default=2)
+    a = p.parse_args(argv)
+    maps = available_maps() if a.maps is None else a.maps
+    families = list(FAMILIES) if a.families is None else a.families
+    if a.episodes < 1:
+        p.error("--episodes must be >= 1")
+    if a.seed < 0:
+        p.error("--seed must be >= 0")
+    for m in maps:
+        if m not in available_maps():
+            p.error(f"--maps: unknown map {m!r}; shipped maps: {', '.join(available_maps())} (compare.py takes map files)")
+    for f in families:
+        if f not in FAMILIES:
+            p.error(f"--families: unknown family {f!r}; known: {', '.join(FAMILIES)}")
+    for name in a.controllers:
+        if name not in CONTROLLERS:
+            p.error(f"--controllers: unknown controller {name!r}; available: {', '.join(CONTROLLERS)}")
+    try:
+        levels = parse_levels(a.levels)
+    except ValueError as e:
+        p.error(str(e))
+    cells = suite(maps, families, levels, a.seed)
+    if not cells:
+        p.error("no cells: give --maps or --families")
+    if not a.checkpoints and not a.controllers:
+        p.error("nothing to benchmark: give checkpoints or --controllers")
+    torch.set_num_threads(a.threads)
+    methods, base = load_methods(a.checkpoints, a.controllers)
+    # Every cell's configs (and the scenario check of each checkpoint) before any episode runs.
+    cfgs = {c.label: dict(zip([n for n, _, _ in methods], method_configs(methods, base, c.config, CHECK_EPISODES, c.seed, c.label)))
+            for c in cells}
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict[str, dict[str, Any]] = {n: {} for n, _, _ in methods}
+    planning: dict[str, dict[str, Any]] = {}
+    t0 = time.perf_counter()
+    for i, c in enumerate(cells):
+        what = f"map {c.name}" if c.kind == "map" else f"{c.name} worlds at difficulty {c.difficulty:g}"
+        print(f"[{i + 1}/{len(cells)}] {c.label}: {what}, seed {c.seed}, {a.episodes} episodes", flush=True)
+        for name, policy, _ in methods:
+            if not runs_on(name, c):
+                print(f"[{c.label}] {name:<22} n/a (a planner needs a map's spec)", flush=True)
+                continue
+            results[name][c.label], stats = evaluate_method(name, policy, cfgs[c.label][name], a.episodes, c.seed, a.device, c.label)
+            if stats is not None:
+                planning.setdefault(name, {})[c.label] = stats
+        done = time.perf_counter() - t0
+        print(f"    {done:.0f} s so far, about {done / (i + 1) * (len(cells) - i - 1):.0f} s to go", flush=True)
+        doc = document(a, levels, cells, methods, cfgs, results, planning, complete=i + 1 == len(cells))
+        (out / "results.json").write_text(json.dumps(doc, indent=2))
+        (out / "results.md").write_text(markdown(results, cells, a.episodes))
+    print("\n" + markdown(results, cells, a.episodes))
+    heatmap(results, cells, a.episodes, a.seed).savefig(out / "heatmap.png", dpi=110)
+    print(f"wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'heatmap.png'}")
+    return doc
+
+
+if __name__ == "__main__":
+    try:
+        main(sys.argv[1:])
+    except (ConfigError, FileNotFoundError, RuntimeError, ValueError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)

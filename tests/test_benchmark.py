@@ -1,0 +1,114 @@
+"""recipes/benchmark.py: a tiny suite writes its table, JSON and heat map; seeds; errors before any work."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from torchnav.evaluation import eval_config
+from torchnav.tasks import NavConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+CKPT = ROOT / "checkpoints" / "td3_arena_actor.pt"
+sys.path.insert(0, str(ROOT / "recipes"))
+benchmark = importlib.import_module("benchmark")
+
+TINY = [str(CKPT), "--maps", "arena", "empty", "--families", "rooms", "--levels", "easy=0.2", "--controllers", "reactive", "astar",
+        "--episodes", "3", "--threads", "1"]
+CELLS = ["arena", "empty", "rooms/easy"]
+
+
+def test_tiny_suite_writes_table_json_and_heatmap(tmp_path):
+    doc = benchmark.main(TINY + ["--out", str(tmp_path)])
+    saved = json.loads((tmp_path / "results.json").read_text())
+    assert saved == json.loads(json.dumps(doc)) and saved["complete"]
+    assert saved["methods"] == ["td3_arena_actor", "reactive", "astar"]
+    assert [c["label"] for c in saved["cells"]] == CELLS
+    shipped = benchmark.available_maps()
+    seeds = [benchmark.SEED_BASE + benchmark.SEED_STRIDE * i
+             for i in (shipped.index("arena"), shipped.index("empty"), benchmark.MAP_SLOTS + benchmark.MAX_LEVELS * list(benchmark.FAMILIES).index("rooms"))]
+    assert [c["seed"] for c in saved["cells"]] == seeds
+    for cell in saved["cells"]:
+        assert set(cell["configs"]) == {"td3_arena_actor", "reactive", "astar"}
+        cfg = cell["configs"]["reactive"]
+        assert cfg["curriculum"]["mode"] == "off" and not cfg["worlds"]["curriculum"]
+        assert cfg["worlds"]["families"] == ({} if cell["kind"] == "map" else {"rooms": 1.0})
+        assert cell["kind"] == "world" or cfg["map"] == cell["name"]
+    rooms = saved["cells"][2]
+    assert rooms["difficulty"] == rooms["configs"]["td3_arena_actor"]["worlds"]["difficulty"] == 0.2
+    for m in saved["methods"]:
+        for label in CELLS:
+            if m == "astar" and label == "rooms/easy":  # the planners need a map's spec
+                assert label not in saved["results"][m]
+                continue
+            s = saved["results"][m][label]["success"]
+            assert saved["results"][m][label]["episodes"] == 3 and 0 <= s["rate"] <= 1
+            assert s["ci95"][0] - 1e-9 <= s["rate"] <= s["ci95"][1] + 1e-9
+    assert set(saved["planning"]["astar"]) == {"arena", "empty"}
+    md = (tmp_path / "results.md").read_text()
+    assert "| cell | seed | td3_arena_actor | reactive | astar |" in md
+    assert all(md.count(f"| {c} |") == 1 for c in CELLS) and md.count("| n/a |") == 1
+    assert (tmp_path / "heatmap.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the same arguments give the same episodes and results
+    again = benchmark.main(TINY + ["--out", str(tmp_path / "again")])
+    assert again["results"] == doc["results"] and again["cells"] == doc["cells"]
+
+
+def test_seeds_depend_on_the_cell_only_and_avoid_training_seeds():
+    levels = benchmark.parse_levels(list(benchmark.DEFAULT_LEVELS))
+    full = benchmark.suite(benchmark.available_maps(), list(benchmark.FAMILIES), levels, benchmark.SEED_BASE)
+    seeds = {c.label: c.seed for c in full}
+    assert len(full) == len(benchmark.available_maps()) + 3 * len(benchmark.FAMILIES) == len(set(seeds.values()))
+    subset = benchmark.suite(["maze"], ["forest"], levels, benchmark.SEED_BASE)
+    assert {c.label: c.seed for c in subset} == {k: seeds[k] for k in ("maze", "forest/easy", "forest/medium", "forest/hard")}
+    assert min(seeds.values()) >= 1_000_000  # training uses seed, 10000 + seed and 20000 + seed
+    assert [c.difficulty for c in full if c.name == "cave"] == [0.2, 0.5, 0.8]
+
+
+def test_planners_run_on_map_cells_only():
+    arena, forest = benchmark.suite(["arena"], ["forest"], {"hard": 0.8}, 0)
+    assert benchmark.runs_on("astar", arena) and benchmark.runs_on("rrt", arena)
+    assert not benchmark.runs_on("astar", forest) and not benchmark.runs_on("rrt", forest)
+    assert benchmark.runs_on("reactive", forest) and benchmark.runs_on("td3_arena_actor", forest)
+
+
+def test_eval_config_replaces_worlds_and_maps_turn_them_off():
+    trained = NavConfig.from_dict({"worlds": {"families": {"rooms": 1.0, "cave": 2.0}, "curriculum": True}})
+    forest = eval_config(trained, worlds={"families": {"forest": 1.0}, "difficulty": 0.8})
+    assert forest.worlds.families == {"forest": 1.0} and forest.worlds.difficulty == 0.8 and not forest.worlds.curriculum
+    assert forest.curriculum.mode == "off"
+    arena = eval_config(trained, map="arena")
+    assert arena.map == "arena" and arena.worlds.families == {}
+    with pytest.raises(ValueError, match="not both"):
+        eval_config(trained, map="arena", worlds={"difficulty": 0.5})
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--maps", "nowhere"], "unknown map 'nowhere'"),
+    (["--families", "jungle"], "unknown family 'jungle'"),
+    (["--controllers", "astr"], "unknown controller 'astr'"),
+    (["--levels", "hard"], "expected NAME=DIFFICULTY"),
+    (["--levels", "hard=x"], "is not a number"),
+    (["--levels", "hard=1.5"], "must be in [0, 1]"),
+    (["--levels", "a=0.1", "a=0.2"], "given twice"),
+    (["--maps", "--families"], "no cells"),
+    (["--episodes", "0"], "--episodes must be >= 1"),
+])
+def test_bad_arguments_stop_before_any_work(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit):
+        benchmark.main(args + ["--out", str(tmp_path / "out")])
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_or_corrupt_checkpoint_is_named(tmp_path):
+    bad = tmp_path / "corrupt.pt"
+    bad.write_bytes(b"not a checkpoint")
+    for path, error in ((tmp_path / "missing.pt", FileNotFoundError), (bad, ValueError)):
+        with pytest.raises(error, match=path.name):
+            benchmark.main([str(path), "--maps", "arena", "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
