@@ -151,7 +151,7 @@ def heatmap(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int
             if c.label in results[m]:
                 rate[i, j] = 100 * results[m][c.label]["success"]["rate"]
     cmap = colormaps["RdYlGn"].with_extremes(bad="0.85")
-    fig = Figure(figsize=(max(6.0, 2.2 + 0.8 * len(cells)), 1.6 + 0.6 * len(methods)))
+    fig = Figure(figsize=(max(6.0, 2.2 + 0.8 * len(cells)), 1.8 + 0.75 * len(methods)))
     ax = fig.add_subplot()
     im = ax.imshow(np.ma.masked_invalid(rate), cmap=cmap, vmin=0, vmax=100, aspect="auto")
     for i, m in enumerate(methods):
@@ -162,10 +162,10 @@ def heatmap(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int
             lo, hi = (100 * x for x in results[m][c.label]["success"]["ci95"])
             r, g, b, _ = cmap(rate[i, j] / 100)
             ink = "white" if 0.299 * r + 0.587 * g + 0.114 * b < 0.5 else "black"
-            ax.text(j, i - 0.12, f"{rate[i, j]:.0f}", ha="center", va="center", fontsize=10, color=ink)
-            ax.text(j, i + 0.24, f"{lo:.0f}–{hi:.0f}", ha="center", va="center", fontsize=6.5, color=ink)
-    ax.set_xticks(range(len(cells)), [c.label for c in cells], rotation=45, ha="right", fontsize=8)
-    ax.set_yticks(range(len(methods)), methods, fontsize=8)
+            ax.text(j, i - 0.12, f"{rate[i, j]:.0f}", ha="center", va="center", fontsize=11, color=ink)
+            ax.text(j, i + 0.24, f"{lo:.0f}–{hi:.0f}", ha="center", va="center", fontsize=7, color=ink)
+    ax.set_xticks(range(len(cells)), [c.label for c in cells], rotation=45, ha="right", fontsize=9)
+    ax.set_yticks(range(len(methods)), methods, fontsize=9)
     for j in range(1, len(cells)):  # separate the maps and each family's levels
         if cells[j].kind != cells[j - 1].kind or (cells[j].kind == "world" and cells[j].name != cells[j - 1].name):
             ax.axvline(j - 0.5, color="white", lw=3)
