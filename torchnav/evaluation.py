@@ -45,13 +45,21 @@ def mean_interval(x: torch.Tensor, z: float = Z95) -> tuple[float, float, float]
 
 
 def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True) -> NavConfig:
-    """``cfg`` for evaluation: optionally another map; with ``anywhere`` the curriculum is off."""
+    """``cfg`` for evaluation: optionally another map; with ``anywhere`` the curriculum is off.
+
+    With procedural worlds and ``anywhere``, the difficulty is fixed too: at
+    ``worlds.max_difficulty`` when training used the difficulty curriculum (its target),
+    else at ``worlds.difficulty``.
+    """
     d = to_dict(cfg)
     over: dict[str, Any] = {}
     if map is not None:
         over["map"] = map
     if anywhere:
         over["curriculum"] = {"mode": "off"}
+        w = cfg.worlds
+        if w.families:
+            over["worlds"] = {"curriculum": False, "difficulty": w.max_difficulty if w.curriculum else w.difficulty}
     return NavConfig.from_dict(merge(d, over))
 
 
