@@ -14,7 +14,7 @@ import torch
 from torchnav.controllers.planning import Obstacles, OccupancyGrid, plan_astar
 from torchnav.maps import load_map
 from torchnav.sim import World, cat_worlds, check_world, points_clearance
-from torchnav.worlds import FAMILIES, cat_batches, goal_band, make_worlds, mix_worlds
+from torchnav.worlds import FAMILIES, cat_batches, goal_band, make_worlds, mix_worlds, slot_counts
 from torchnav.worlds import cave, corridors, forest, open_space, rooms
 from torchnav.worlds.raster import clearance_grid
 from torchnav.worlds.wavefront import DIAG, ORTHO, UNREACHED, geodesic_distance
@@ -206,6 +206,7 @@ def test_mixture_draws_a_family_per_env_and_pads_slots():
         else:
             assert torch.equal(w.segments[e][w.segment_mask[e]], arena.segments[0]) and n_circ == 0 and not w.box_mask[e].any()
     assert w.circles.shape[1] == forest.MAX_POSTS and w.segments.shape[1] == rooms_slots()
+    assert slot_counts(list(weights)) == {k: getattr(w, k).shape[1] for k in ("segments", "circles", "boxes")}
     assert (points_clearance(m.start[:, None, :2], w)[:, 0] > m.robot_radius).all()
     again = mix_worlds(24, weights, d, gen(3))
     assert again.family == m.family and torch.equal(again.goal, m.goal) and torch.equal(again.world.segments, w.segments)
