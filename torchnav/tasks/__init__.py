@@ -1,6 +1,6 @@
 """Tasks built on the simulator (no TorchRL here)."""
 
-from .config import ActionConfig, CurriculumConfig, LidarConfig, NavConfig, ObservationConfig, ResetConfig, RewardConfig, RobotConfig
+from .config import ActionConfig, CurriculumConfig, LidarConfig, NavConfig, ObservationConfig, ResetConfig, RewardConfig, RobotConfig, WorldsConfig
 from .line import LineState, LineTask
 from .line_config import LINE_TERMS, LineConfig
 from .curriculum import CurriculumState, after_episodes, after_placements
@@ -9,6 +9,6 @@ from .rewards import PRESETS, TERMS, resolve_weights
 
 __all__ = [
     "NavConfig", "RobotConfig", "LidarConfig", "CurriculumConfig", "RewardConfig", "ObservationConfig",
-    "ActionConfig", "ResetConfig", "CurriculumState", "after_placements", "after_episodes", "NavState",
+    "ActionConfig", "ResetConfig", "WorldsConfig", "CurriculumState", "after_placements", "after_episodes", "NavState",
     "NavTask", "PRESETS", "TERMS", "resolve_weights", "LineConfig", "LineTask", "LineState", "LINE_TERMS",
 ]

@@ -90,8 +90,16 @@ class ResetConfig:
 
 
 @dataclass(frozen=True)
+class WorldsConfig:
+    """Procedural worlds instead of ``map`` (docs/worlds.md): each reset draws a new world per env."""
+
+    families: dict[str, float] = field(default_factory=dict)  # {}: episodes on `map`; else {family: weight}, e.g. {rooms: 1, "map:maze": 0.5}
+    difficulty: float = 0.5  # in [0, 1], of every generated world (door widths, densities, goal distance)
+
+
+@dataclass(frozen=True)
 class NavConfig:
-    map: str = "arena"  # shipped map name or path to a map YAML
+    map: str = "arena"  # shipped map name or path to a map YAML (unused when worlds.families is set)
     max_steps: int = 500  # steps before truncation
     goal_tolerance: float = 0.3  # m, success when the robot centre is this close to the goal
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
@@ -102,6 +110,7 @@ class NavConfig:
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     action: ActionConfig = field(default_factory=ActionConfig)
     reset: ResetConfig = field(default_factory=ResetConfig)
+    worlds: WorldsConfig = field(default_factory=WorldsConfig)
 
     def __post_init__(self) -> None:
         c = self.curriculum
@@ -118,6 +127,9 @@ class NavConfig:
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),
             (self.reset.pool >= 0, "reset.pool must be >= 0"),
             (self.reset.start_clearance >= 0 and self.reset.goal_clearance >= 0, "reset clearances must be >= 0 m"),
+            (0 <= self.worlds.difficulty <= 1, f"worlds.difficulty must be in [0, 1], got {self.worlds.difficulty!r}"),
+            (all(w >= 0 for w in self.worlds.families.values()) and (not self.worlds.families or sum(self.worlds.families.values()) > 0),
+             f"worlds.families weights must be >= 0 with a positive sum, got {self.worlds.families!r}"),
         ]
         for ok, msg in checks:
             if not ok:

@@ -13,9 +13,11 @@ import torch
 from tensordict import tensorclass
 from torch import Tensor
 
+from ..config import ConfigError
 from ..maps import load_map
-from ..sim import SimState, World, init_state, safe_hypot, sectorize, wrap_angle
+from ..sim import SimState, World, init_state, make_world, pad_world, safe_hypot, sectorize, wrap_angle
 from ..sim import step as sim_step
+from ..worlds import mix_worlds, slot_counts
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
 from .rewards import resolve_weights, reward_terms
@@ -49,7 +51,14 @@ class NavState:
 
 
 class NavTask:
-    """Configured navigation task for ``num_envs`` envs on ``device``."""
+    """Configured navigation task for ``num_envs`` envs on ``device``.
+
+    Episodes take place on ``cfg.map`` (its fixed obstacles and random objects
+    placed at each reset), or, with ``cfg.worlds.families`` set, in a freshly
+    generated world per env and reset (:func:`torchnav.worlds.mix_worlds`), whose
+    start and goal come with the world; ``spec`` is then None and ``base_world``
+    holds only masked-off slots.
+    """
 
     def __init__(self, cfg: NavConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
         if num_envs < 1:
@@ -58,15 +67,24 @@ class NavTask:
         self.num_envs = num_envs
         self.device = torch.device(device)
         self.dtype = dtype
-        self.spec = load_map(cfg.map)
         self.params = cfg.sim_params()
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)
         self.n_sectors = cfg.lidar.n_sectors
         self.obs_dim = self.n_sectors + 4
         self.obs_size = self.obs_dim * cfg.observation.history
-        # Fixed obstacles with every random slot masked off; resets fill the random slots.
-        self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
+        if cfg.worlds.families:
+            # Procedural worlds: every episode brings its own world, padded to the families' slot counts.
+            try:
+                self.slots = slot_counts(list(cfg.worlds.families))
+            except ValueError as e:
+                raise ConfigError(f"worlds.families: {e}") from None
+            self.spec = None
+            self.base_world = pad_world(make_world(num_envs, device=self.device, dtype=dtype), **self.slots)  # all slots off
+        else:
+            self.spec = load_map(cfg.map)
+            # Fixed obstacles with every random slot masked off; resets fill the random slots.
+            self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
         scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
@@ -116,15 +134,20 @@ class NavTask:
     def _fresh(self, idx: Tensor, cur: CurriculumState, gen: torch.Generator) -> NavState:
         """New episodes for envs ``idx`` ``(n,)``."""
         c, rc = self.cfg, self.cfg.reset
-        world = self.base_world[idx]
-        start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
-        goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
-        world = place_random_objects(
-            world, self.spec, start[:, :2], goal, rc.candidates, gen,
-            start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance,
-        )
-        sim = init_state(start, world, self.params)
         n = idx.shape[0]
+        if self.spec is None:
+            # Generated worlds bring their own start and a goal reachable by the robot's disc.
+            batch = mix_worlds(n, c.worlds.families, c.worlds.difficulty, gen, self.device, self.dtype, c.robot.radius)
+            world, start, goal = pad_world(batch.world, **self.slots), batch.start, batch.goal
+        else:
+            world = self.base_world[idx]
+            start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
+            goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
+            world = place_random_objects(
+                world, self.spec, start[:, :2], goal, rc.candidates, gen,
+                start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance,
+            )
+        sim = init_state(start, world, self.params)
         obs = self.observe(sim, goal)
         dist, _ = self.goal_vector(sim.pose, goal)
         zeros = torch.zeros(n, dtype=self.dtype, device=self.device)
@@ -161,8 +184,9 @@ class NavTask:
     def _from_pool(self, n: int, cur: CurriculumState, gen: torch.Generator) -> NavState:
         """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short.
 
-        Every env of a task shares the map's fixed world, so episodes sampled for any
-        env fit every env. Sampling many at once costs about as much as sampling a
+        Every env of a task shares the map's fixed world (with generated worlds, each
+        episode carries its own world, padded to the task's slot counts), so episodes
+        sampled for any env fit every env. Sampling many at once costs about as much as sampling a
         few (the reset samplers are bound by per-operation overhead), so with a pool
         a reset costs an index copy most of the time. Goals come from the curriculum
         radius at the time the pool was filled.
