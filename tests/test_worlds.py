@@ -88,6 +88,13 @@ def test_shapes_masks_and_bounds_do_not_depend_on_difficulty(name):
     assert easy.world.segment_mask.sum() + easy.world.circle_mask.sum() + easy.world.box_mask.sum() > 12
 
 
+def test_worlds_in_float64():
+    for name in NAMES + ["map:street"]:
+        b = make_worlds(name, 2, 0.7, gen(), dtype=torch.float64)
+        check_world(b.world, 2, torch.float64, torch.device("cpu"))
+        assert b.start.dtype == b.goal.dtype == b.path_length.dtype == b.bounds.dtype == torch.float64
+
+
 # ------------------------------------------------------------------------------ seeding
 
 
