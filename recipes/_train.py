@@ -55,23 +55,33 @@ class NavAdapter:
     def describe(self, s: dict[str, Any]) -> str:
         return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("success", "collision", "timeout"))
 
+    def where(self) -> str:
+        w = self.eval_config.worlds
+        return f"worlds {'+'.join(w.families)} at difficulty {w.difficulty:g}" if w.families else self.config.map
+
     def format(self, s: dict[str, Any], title: str | None = None) -> str:
-        return format_summary(s, title=title or f"final evaluation on {self.config.map}, goals anywhere, deterministic policy")
+        return format_summary(s, title=title or f"final evaluation on {self.where()}, goals anywhere, deterministic policy")
 
     def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
         return record_episodes(policy, self.eval_config, path, episodes, seed=seed, device=device, metadata=metadata)
 
     def status(self, env) -> str:
+        if self.config.worlds.families:
+            return "difficulty " + "/".join(f"{d:.2f}" for d in env.curriculum.difficulty.tolist())
         return f"radius {env.curriculum.radius.item():.2f}m"
 
     def scalars(self, env) -> dict[str, float]:
-        return {"curriculum/radius": env.curriculum.radius.item()}
+        out = {"curriculum/radius": env.curriculum.radius.item()}
+        for name, d, rate in zip(self.config.worlds.families, env.curriculum.difficulty.tolist(), env.curriculum.family_success.tolist()):
+            out[f"curriculum/difficulty/{name}"] = d
+            out[f"curriculum/success/{name}"] = rate
+        return out
 
     def task_config(self) -> dict[str, Any]:
         return C.to_dict(self.config)
 
     def info(self) -> dict[str, Any]:
-        return {"map": self.eval_config.map}
+        return {"map": self.where()}
 
 
 class LineAdapter:

@@ -77,3 +77,29 @@ def test_curriculum_state_round_trips_and_old_checkpoints_load():
 def test_bad_worlds_config_is_named(worlds, match):
     with pytest.raises(ConfigError, match=match):
         NavConfig.from_dict({"worlds": worlds})
+
+
+def test_partial_reset_regenerates_only_the_masked_envs_and_map_path_is_unchanged():
+    from torchnav.envs import make_env
+    from torchnav.tasks import NavTask
+    from torchnav.worlds import slot_counts
+
+    t = NavTask(worlds_cfg(), 6)
+    g = torch.Generator().manual_seed(1)
+    s, c = t.initial_state(CurriculumState.initial(t.cfg.curriculum, worlds=t.cfg.worlds), g)
+    assert t.spec is None and s.world.segments.shape == (6, slot_counts(list(FAMILIES))["segments"], 4)
+    mask = torch.tensor([True, False, False, True, False, False])
+    r, _ = t.reset(s, mask, c, g)
+    keep = ~mask
+    for key in ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask"):
+        assert torch.equal(getattr(r.world, key)[keep], getattr(s.world, key)[keep])
+    assert torch.equal(r.sim.pose[keep], s.sim.pose[keep]) and not torch.equal(r.goal[mask], s.goal[mask])
+    assert make_env("arena", num_envs=2).task.spec.name == "arena"
+
+
+def test_planners_refuse_procedural_worlds_by_name():
+    from torchnav.controllers import make_controller
+
+    env = NavEnv(worlds_cfg(), num_envs=2, seed=0)
+    with pytest.raises(ValueError, match="astar planner needs a map"):
+        make_controller("astar", nav=env.cfg).bind(env)

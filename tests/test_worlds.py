@@ -14,7 +14,7 @@ import torch
 from torchnav.controllers.planning import Obstacles, OccupancyGrid, plan_astar
 from torchnav.maps import load_map
 from torchnav.sim import World, cat_worlds, check_world, points_clearance
-from torchnav.worlds import FAMILIES, cat_batches, goal_band, make_worlds, mix_worlds
+from torchnav.worlds import FAMILIES, cat_batches, goal_band, make_worlds, mix_worlds, slot_counts
 from torchnav.worlds import cave, corridors, forest, open_space, rooms
 from torchnav.worlds.raster import clearance_grid
 from torchnav.worlds.wavefront import DIAG, ORTHO, UNREACHED, geodesic_distance
@@ -86,6 +86,13 @@ def test_shapes_masks_and_bounds_do_not_depend_on_difficulty(name):
     for key in ("segments", "circles", "boxes"):
         assert getattr(easy.world, key).shape == getattr(hard.world, key).shape
     assert easy.world.segment_mask.sum() + easy.world.circle_mask.sum() + easy.world.box_mask.sum() > 12
+
+
+def test_worlds_in_float64():
+    for name in NAMES + ["map:street"]:
+        b = make_worlds(name, 2, 0.7, gen(), dtype=torch.float64)
+        check_world(b.world, 2, torch.float64, torch.device("cpu"))
+        assert b.start.dtype == b.goal.dtype == b.path_length.dtype == b.bounds.dtype == torch.float64
 
 
 # ------------------------------------------------------------------------------ seeding
@@ -206,6 +213,7 @@ def test_mixture_draws_a_family_per_env_and_pads_slots():
         else:
             assert torch.equal(w.segments[e][w.segment_mask[e]], arena.segments[0]) and n_circ == 0 and not w.box_mask[e].any()
     assert w.circles.shape[1] == forest.MAX_POSTS and w.segments.shape[1] == rooms_slots()
+    assert slot_counts(list(weights)) == {k: getattr(w, k).shape[1] for k in ("segments", "circles", "boxes")}
     assert (points_clearance(m.start[:, None, :2], w)[:, 0] > m.robot_radius).all()
     again = mix_worlds(24, weights, d, gen(3))
     assert again.family == m.family and torch.equal(again.goal, m.goal) and torch.equal(again.world.segments, w.segments)

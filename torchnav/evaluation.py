@@ -51,7 +51,12 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
     ``map`` also turns procedural worlds off, so a policy trained on generated worlds is
     evaluated on that map. ``worlds``: keys of the ``worlds`` section that replace those
     of ``cfg`` (``families`` are replaced, not merged), e.g. ``{"families": {"forest":
-    1.0}, "difficulty": 0.5}``; the difficulty curriculum is off.
+    1.0}, "difficulty": 0.5}``; the difficulty curriculum is off, so the difficulty is the
+    one given (or ``cfg``'s ``worlds.difficulty``).
+
+    With procedural worlds and ``anywhere``, the difficulty is fixed too: at
+    ``worlds.max_difficulty`` when training used the difficulty curriculum (its target),
+    else at ``worlds.difficulty``.
     """
     if map is not None and worlds is not None:
         raise ValueError("eval_config: give a map or procedural worlds, not both")
@@ -64,6 +69,9 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
         d["worlds"] = {**d["worlds"], **worlds, "curriculum": False}
     if anywhere:
         over["curriculum"] = {"mode": "off"}
+        w = d["worlds"]
+        if w["families"]:
+            over["worlds"] = {"curriculum": False, "difficulty": w["max_difficulty"] if w["curriculum"] else w["difficulty"]}
     return NavConfig.from_dict(merge(d, over))
 
 

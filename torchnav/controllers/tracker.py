@@ -201,9 +201,11 @@ class PlannerController(Controller):
     def bind(self, env: Any) -> "PlannerController":
         """Drive ``env`` (a ``NavEnv``, or anything with ``cfg``, ``num_envs``, ``state.world``
         and ``task.spec``): adopt its config and cache the grid of its map's fixed obstacles."""
+        spec = env.task.spec
+        if spec is None:
+            raise ValueError(f"the {self.planner} planner needs a map's fixed obstacles; it does not run on procedural worlds (worlds.families)")
         super().bind(env)
         self._env = env
-        spec = env.task.spec
         self._bounds = spec.bounds
         self._n_fixed = (spec.n_fixed_circles, spec.n_fixed_boxes)
         self._fixed = Obstacles(*(np.asarray(x, np.float64).reshape(-1, w) for x, w in

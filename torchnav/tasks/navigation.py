@@ -15,6 +15,7 @@ from torch import Tensor
 
 from ..maps import load_map
 from ..sim import SimState, World, init_state, pad_world, safe_hypot, sectorize, wrap_angle
+from ..worlds import mix_worlds, slot_counts
 from ..sim import step as sim_step
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
@@ -62,19 +63,20 @@ class NavTask:
         self.num_envs = num_envs
         self.device = torch.device(device)
         self.dtype = dtype
-        self.spec = load_map(cfg.map)
+        self.families = tuple(cfg.worlds.families)  # procedural worlds instead of the map when non-empty
+        self.spec = None if self.families else load_map(cfg.map)  # the map; None with procedural worlds
         self.params = cfg.sim_params()
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)
         self.n_sectors = cfg.lidar.n_sectors
         self.obs_dim = self.n_sectors + 4
         self.obs_size = self.obs_dim * cfg.observation.history
-        # Fixed obstacles with every random slot masked off; resets fill the random slots.
-        self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
-        self.families = tuple(cfg.worlds.families)  # procedural worlds instead of the map when non-empty
         if self.families:
             self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
-            self._slots = self._world_slots()
+            self.slots = slot_counts(self.families)  # every episode's world is padded to these
+        else:
+            # Fixed obstacles with every random slot masked off; resets fill the random slots.
+            self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
         scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
@@ -150,23 +152,13 @@ class NavTask:
             family=family, difficulty=difficulty, batch_size=[n], device=self.device,
         )
 
-    def _world_slots(self) -> dict[str, int]:
-        """Obstacle slots per kind that fit a world of every configured family (each family's
-        generator uses the same slot counts at every difficulty)."""
-        from ..worlds import make_worlds
-
-        probe = [make_worlds(f, 1, 0.0, torch.Generator(self.device).manual_seed(0), self.device, self.dtype, self.cfg.robot.radius).world for f in self.families]
-        return {k: max(getattr(w, k).shape[1] for w in probe) for k in ("segments", "circles", "boxes")}
-
     def _generated(self, n: int, cur: CurriculumState, gen: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor]:
         """``n`` procedural episodes: padded worlds, starts ``(n, 3)``, goals ``(n, 2)``, family
         indices ``(n,)`` and difficulties ``(n,)``, each family at its curriculum difficulty."""
-        from ..worlds import mix_worlds
-
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
         batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, gen, self.device, self.dtype, self.cfg.robot.radius)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
-        return pad_world(batch.world, **self._slots), batch.start, batch.goal, family, batch.difficulty
+        return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty
 
     def initial_state(self, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
         """Fresh episodes in every env."""

@@ -20,7 +20,8 @@ class WorldBatch:
         start: ``(B, 3)`` start pose ``[x m, y m, theta rad]``.
         goal: ``(B, 2)`` goal ``[x, y]`` m.
         path_length: ``(B,)`` m, length of a collision-free path for the robot's
-            disc from start to goal (an upper bound on the shortest one, within a few percent).
+            disc from start to goal: never below the shortest one, and 3 - 16% above A*
+            with shortcutting on the test episodes.
         bounds: ``(B, 4)`` ``[xmin, ymin, xmax, ymax]`` m of each world (walls run along them).
         difficulty: ``(B,)`` in [0, 1], the difficulty each env was generated at.
         family: ``B`` family names (``"rooms"``, ..., or ``"map:<name>"`` for a shipped map).

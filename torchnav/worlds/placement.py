@@ -32,7 +32,7 @@ from .wavefront import ORTHO, UNREACHED, geodesic_distance
 GOAL_BAND_EASY = (0.1, 0.4)  # goal path length as a fraction of the farthest reachable one, at difficulty 0
 GOAL_BAND_HARD = (0.6, 1.0)  # ... and at difficulty 1 (linear in between)
 START_REDRAWS = 2  # redraws of a start that lies in a small free component
-_CELLS_PER_CHUNK = 1 << 21  # envs are placed in chunks of about this many grid cells (memory bound)
+_CELLS_PER_CHUNK = 1 << 18  # envs are placed in chunks of at most this many grid cells (small chunks stay in cache)
 
 
 def goal_band(difficulty: Tensor) -> tuple[Tensor, Tensor]:
@@ -139,13 +139,20 @@ def place_episodes(
     component holding at least half of the free space where one does (see
     :func:`_start_and_distances`), with a uniform heading. Raises ValueError if
     some env has no free cell for a disc of ``robot_radius`` m.
-    Envs are processed in chunks of about ``2**21`` grid cells to bound memory.
+    Envs are processed in chunks of similar world size, of at most ``2**18`` grid cells
+    (faster in cache than all at once).
     """
-    n = world.batch_size[0]
-    extent = (bounds[:, 2:] - bounds[:, :2]).amax(0) / resolution + 1
-    chunk = max(1, int(_CELLS_PER_CHUNK // float(extent.prod())))
-    parts = [
-        _place(world[i : i + chunk], bounds[i : i + chunk], difficulty[i : i + chunk], gen, robot_radius, resolution, min_goal_distance)
-        for i in range(0, n, chunk)
-    ]
-    return tuple(torch.cat(t) for t in zip(*parts))
+    # Chunks of envs of similar size, so a chunk's grid fits its envs closely.
+    cells = ((bounds[:, 2:] - bounds[:, :2]) / resolution + 1).prod(1)
+    order = torch.argsort(cells, stable=True)
+    sizes = cells[order].tolist()
+    parts, i = [], 0
+    while i < len(sizes):
+        j = i + 1
+        while j < len(sizes) and (j + 1 - i) * sizes[j] <= _CELLS_PER_CHUNK:
+            j += 1
+        idx = order[i:j]
+        parts.append(_place(world[idx], bounds[idx], difficulty[idx], gen, robot_radius, resolution, min_goal_distance))
+        i = j
+    inverse = torch.argsort(order)
+    return tuple(torch.cat(t)[inverse] for t in zip(*parts))

@@ -5,8 +5,8 @@ Evaluating every cell against every obstacle costs ``cells x obstacles`` per env
 cut into blocks of ``block x block`` cells. One coarse pass measures every
 obstacle from every block centre; a cell of the block can only be within
 ``reach`` m of an obstacle that is within ``reach + half-diagonal`` of the
-centre, so the fine pass measures each cell against those obstacles only (at
-most ``k`` per block, ``k`` being the largest such count in the batch).
+centre, so the fine pass measures each cell against those obstacles only (blocks
+with none are skipped).
 
 The result equals the true clearance wherever that is at most ``reach`` and
 exceeds ``reach`` everywhere else, which is all a test ``clearance > t`` with
@@ -39,23 +39,38 @@ def _one_kind(world: World, kind: str, obstacles: Tensor, mask: Tensor) -> World
     return World(**parts, batch_size=[n], device=obstacles.device)
 
 
-def _near_obstacles(world: World, kind: str, centres: Tensor, reach: float) -> tuple[Tensor, Tensor] | None:
-    """Per block centre ``(B, P, 2)``, the ``k`` obstacles of ``kind`` nearest to it, where ``k``
-    is the most obstacles within ``reach`` of any centre: ``(B * P, k, width)`` and mask."""
-    mkey = dict(_KINDS)[kind]
-    obs, mask = getattr(world, kind), getattr(world, mkey)
+def _kind_clearance(world: World, kind: str, centres: Tensor, cells: Tensor, reach: float) -> Tensor | None:
+    """Clearance ``(B * P, C)`` of the cells ``cells`` ``(B * P, C, 2)`` of ``P`` blocks per env to
+    the obstacles of ``kind`` within ``reach`` of the block centres ``(B, P, 2)`` (``+inf`` where
+    there are none); None when no block has any.
+
+    Blocks are grouped by how many obstacles are near them (1, 2, 3-4, 5-8, ...), and each
+    group measures only that many, so a few crowded blocks do not cost every block.
+    """
+    obs, mask = getattr(world, kind), getattr(world, dict(_KINDS)[kind])
     b, n = mask.shape
-    if n == 0 or not mask.any():
-        return None
     p = centres.shape[1]
+    if n == 0:
+        return None
     # Distance of every centre to each obstacle on its own: one single-obstacle world per (env, slot).
     single = _one_kind(world, kind, obs.reshape(b * n, 1, -1), mask.reshape(b * n, 1))
     d = points_clearance(centres[:, None].expand(b, n, p, 2).reshape(b * n, p, 2), single).reshape(b, n, p)
-    k = max(1, int((d <= reach).sum(1).max()))
-    near = d.topk(min(k, n), dim=1, largest=False).indices.transpose(1, 2)  # (B, P, k)
-    pick = near.reshape(b, -1)
-    chosen = obs.gather(1, pick[..., None].expand(-1, -1, obs.shape[-1])).reshape(b * p, -1, obs.shape[-1])
-    return chosen, mask.gather(1, pick).reshape(b * p, -1)
+    count = (d <= reach).sum(1).reshape(-1)  # (B * P,)
+    most = int(count.max())
+    if most == 0:
+        return None
+    nearest = d.topk(most, dim=1, largest=False).indices.transpose(1, 2).reshape(b * p, most)  # slots, nearest first
+    env = torch.arange(b, device=obs.device).repeat_interleave(p)
+    out = torch.full(cells.shape[:2], math.inf, dtype=cells.dtype, device=cells.device)
+    fewer, k = 0, 1
+    while fewer < most:
+        sel = ((count > fewer) & (count <= k)).nonzero()[:, 0]
+        if sel.numel():
+            slots = nearest[sel, : min(k, most)]
+            near_mask = mask[env[sel, None], slots] & (torch.arange(slots.shape[1], device=obs.device) < count[sel, None])
+            out[sel] = points_clearance(cells[sel], _one_kind(world, kind, obs[env[sel, None], slots], near_mask))
+        fewer, k = k, 2 * k
+    return out
 
 
 def clearance_grid(world: World, origin: tuple[float, float], shape: tuple[int, int], resolution: float, reach: float, block: int = 8) -> Tensor:
@@ -81,9 +96,9 @@ def clearance_grid(world: World, origin: tuple[float, float], shape: tuple[int, 
     best = torch.full(cells.shape[:2], math.inf, dtype=like.dtype, device=like.device)
     half_diag = (block - 1) / 2 * resolution * math.sqrt(2.0)
     for kind, _ in _KINDS:
-        near = _near_obstacles(world, kind, centres, reach + half_diag)
-        if near is not None:
-            best = torch.minimum(best, points_clearance(cells, _one_kind(world, kind, *near)))
+        got = _kind_clearance(world, kind, centres, cells, reach + half_diag)
+        if got is not None:
+            best = torch.minimum(best, got)
     # (B, hb, wb, block_y, block_x) -> (B, hb * block, wb * block), then crop.
     grid = best.reshape(b, hb, wb, block, block).permute(0, 1, 3, 2, 4).reshape(b, hb * block, wb * block)
     return grid[:, :h, :w]

@@ -40,6 +40,24 @@ def _map_layout(name: str, num_envs: int, device: torch.device, dtype: torch.dty
     return world, bounds, max(MAP_RESOLUTION, max(w, h) / 240)
 
 
+def _layout(family: str, d: Tensor, generator: torch.Generator, dtype: torch.dtype) -> tuple[World, Tensor, float]:
+    """The worlds of ``family`` at difficulties ``d`` ``(B,)``, their bounds and the placement resolution (m)."""
+    if family.startswith(MAP_PREFIX):
+        return _map_layout(family[len(MAP_PREFIX) :], d.shape[0], d.device, dtype)
+    if family in FAMILIES:
+        world, bounds = FAMILIES[family].layout(d, generator)
+        return world, bounds, FAMILIES[family].RESOLUTION
+    raise ValueError(f"unknown world family {family!r}; known: {', '.join(FAMILIES)}, or {MAP_PREFIX}<name> with a map of {available_maps()}")
+
+
+def slot_counts(families: Sequence[str]) -> dict[str, int]:
+    """Obstacle slots ``{"segments": S, "circles": C, "boxes": K}`` that worlds of any of ``families``
+    fit into (each family's counts are the same at every difficulty). Raises ValueError on an
+    unknown family."""
+    worlds = [_layout(name, torch.zeros(1), torch.Generator().manual_seed(0), torch.float32)[0] for name in families]
+    return {key: max(getattr(w, key).shape[1] for w in worlds) for key in ("segments", "circles", "boxes")}
+
+
 def make_worlds(
     family: str,
     num_envs: int,
@@ -61,13 +79,7 @@ def make_worlds(
     """
     dev = _device(generator, device)
     d = as_difficulty(difficulty, num_envs, dev, dtype)
-    if family.startswith(MAP_PREFIX):
-        world, bounds, resolution = _map_layout(family[len(MAP_PREFIX) :], num_envs, dev, dtype)
-    elif family in FAMILIES:
-        world, bounds = FAMILIES[family].layout(d, generator)
-        resolution = FAMILIES[family].RESOLUTION
-    else:
-        raise ValueError(f"unknown world family {family!r}; known: {', '.join(FAMILIES)}, or {MAP_PREFIX}<name> with a map of {available_maps()}")
+    world, bounds, resolution = _layout(family, d, generator, dtype)
     start, goal, length = place_episodes(world, bounds, d, generator, robot_radius=robot_radius, resolution=resolution)
     return WorldBatch(
         world=world, start=start, goal=goal, path_length=length, bounds=bounds, difficulty=d,

@@ -27,7 +27,7 @@ ROOM_SIZE = (2.5, 4.0)  # m, range of a column's width and a row's height
 DOOR_END_GAP = 0.3  # m, least wall left between a door and a wall's end
 FURNITURE_GAP = 1.0  # m, least gap between furniture and any wall
 FURNITURE_HALF = (0.2, 0.6)  # m, range of furniture half extents (before shrinking to fit)
-RESOLUTION = 0.1  # m, placement grid
+RESOLUTION = 0.125  # m, placement grid: a 0.8 m door leaves a 0.22 m band of safe cell centres, wider than a cell
 
 
 def params(d: Tensor) -> dict[str, Tensor]:
