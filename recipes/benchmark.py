@@ -14,9 +14,9 @@ with the generator's start and reachable goal (curriculum off; docs/worlds.md).
 Methods: the checkpoints (each in its own task config; one whose scenarios differ from
 the first's is refused, as in compare.py) and ``--controllers`` (default the memoryless
 ``go_to_goal reactive potential_field``, in the first checkpoint's task config). The
-planners ``astar`` and ``rrt`` read the map's spec (its bounds and which obstacles are
-fixed, ``PlannerController.bind``), so they run on map cells only; their generated cells
-read n/a.
+planners ``astar`` and ``rrt`` plan on a map's fixed obstacles and bounds (its spec; they
+refuse procedural worlds, ``PlannerController.bind``), so they run on map cells only;
+their generated cells read n/a.
 
 Seeds: cell ``i`` plays episodes with env seed ``--seed + 10007 * i`` (default ``--seed``
 1000000), ``i`` its index in the canonical suite: shipped maps in ``available_maps()``
@@ -50,7 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from compare import _pct, evaluate_method, load_methods, method_configs  # noqa: E402
 
 from torchnav.config import ConfigError, to_dict  # noqa: E402
-from torchnav.controllers import CONTROLLERS  # noqa: E402
+from torchnav.controllers import CONTROLLERS, PlannerController  # noqa: E402
 from torchnav.evaluation import eval_config  # noqa: E402
 from torchnav.maps import available_maps  # noqa: E402
 from torchnav.tasks import NavConfig  # noqa: E402
@@ -58,7 +58,6 @@ from torchnav.worlds import FAMILIES  # noqa: E402
 
 DEFAULT_LEVELS = ("easy=0.2", "medium=0.5", "hard=0.8")
 DEFAULT_CONTROLLERS = ("go_to_goal", "reactive", "potential_field")
-MAP_ONLY = ("astar", "rrt")  # planners bound to the map's spec (PlannerController.bind)
 DEFAULT_EPISODES = 200
 SEED_BASE, SEED_STRIDE = 1_000_000, 10_007
 MAP_SLOTS, MAX_LEVELS = 100, 16  # canonical cell index: maps in [0, MAP_SLOTS), then MAX_LEVELS per family
@@ -115,13 +114,15 @@ def suite(maps: list[str], families: list[str], levels: dict[str, float], seed: 
     return cells
 
 
-def runs_on(method: str, cell: Cell) -> bool:
-    """Whether ``method`` is evaluated on ``cell`` (the planners only on maps)."""
-    return cell.kind == "map" or method not in MAP_ONLY
+def runs_on(policy: Any, cell: Cell) -> bool:
+    """Whether ``policy`` is evaluated on ``cell``: the planners need a map's spec and refuse
+    procedural worlds (``PlannerController.bind``), so they run on map cells only."""
+    return cell.kind == "map" or not isinstance(policy, PlannerController)
 
 
 def markdown(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int) -> str:
-    """One Markdown table: a row per cell, a column per method, success % [95% Wilson interval]."""
+    """One Markdown table: a row per cell, a column per method, success % [95% Wilson interval].
+    ``results[method][cell]``: a summary, None where the method does not run (n/a), absent before it ran."""
     methods = list(results)
     lines = [
         f"Success % [95% Wilson interval], {episodes} episodes per cell; seeds per cell in results.json "
@@ -133,14 +134,14 @@ def markdown(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: in
     for c in cells:
         row = []
         for m in methods:
-            s = results[m].get(c.label)
-            row.append(_pct(s, "success") if s else "n/a" if not runs_on(m, c) else "–")
+            s = results[m].get(c.label, "–")
+            row.append("n/a" if s is None else s if s == "–" else _pct(s, "success"))
         lines.append(f"| {c.label} | {c.seed} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 
 def heatmap(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int, seed: int):
-    """Methods x cells, coloured and annotated by success % (interval below); grey: not run."""
+    """Methods x cells, coloured and annotated by success % (interval below); grey: not run (n/a)."""
     from matplotlib import colormaps
     from matplotlib.figure import Figure
 
@@ -148,7 +149,7 @@ def heatmap(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int
     rate = np.full((len(methods), len(cells)), np.nan)
     for i, m in enumerate(methods):
         for j, c in enumerate(cells):
-            if c.label in results[m]:
+            if results[m].get(c.label):
                 rate[i, j] = 100 * results[m][c.label]["success"]["rate"]
     cmap = colormaps["RdYlGn"].with_extremes(bad="0.85")
     fig = Figure(figsize=(max(6.0, 2.2 + 0.8 * len(cells)), 1.8 + 0.75 * len(methods)))
@@ -238,7 +239,8 @@ def main(argv: list[str]) -> dict[str, Any]:
         what = f"map {c.name}" if c.kind == "map" else f"{c.name} worlds at difficulty {c.difficulty:g}"
         print(f"[{i + 1}/{len(cells)}] {c.label}: {what}, seed {c.seed}, {a.episodes} episodes", flush=True)
         for name, policy, _ in methods:
-            if not runs_on(name, c):
+            if not runs_on(policy, c):
+                results[name][c.label] = None
                 print(f"[{c.label}] {name:<22} n/a (a planner needs a map's spec)", flush=True)
                 continue
             results[name][c.label], stats = evaluate_method(name, policy, cfgs[c.label][name], a.episodes, c.seed, a.device, c.label)
