@@ -66,7 +66,7 @@ CHECK_EPISODES = 16  # episodes per cell compared before the run to refuse a che
 
 @dataclass(frozen=True)
 class Cell:
-    """One column of the suite: a shipped map, or a family of generated worlds at one difficulty."""
+    """One cell of the suite: a shipped map, or a family of generated worlds at one difficulty."""
 
     label: str  # "arena", "forest/hard"
     kind: str  # "map" or "world"
