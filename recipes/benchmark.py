@@ -223,6 +223,8 @@ def main(argv: list[str]) -> dict[str, Any]:
     cells = suite(maps, families, levels, a.seed)
     if not cells:
         p.error("no cells: give --maps or --families")
+    if len({c.label for c in cells}) < len(cells):
+        p.error(f"a cell is given twice: {' '.join(c.label for c in cells)}")
     if not a.checkpoints and not a.controllers:
         p.error("nothing to benchmark: give checkpoints or --controllers")
     torch.set_num_threads(a.threads)

@@ -109,6 +109,7 @@ def test_eval_config_replaces_worlds_and_maps_turn_them_off():
     (["--levels", "hard=1.5"], "must be in [0, 1]"),
     (["--levels", "a=0.1", "a=0.2"], "given twice"),
     (["--maps", "--families"], "no cells"),
+    (["--maps", "arena", "arena"], "given twice"),
     (["--episodes", "0"], "--episodes must be >= 1"),
 ])
 def test_bad_arguments_stop_before_any_work(tmp_path, capsys, args, message):
