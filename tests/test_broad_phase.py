@@ -43,12 +43,12 @@ def poses(batch: int, seed: int, dtype=F64, half=5.5) -> torch.Tensor:
     return torch.cat((torch.rand(batch, 2, generator=g, dtype=F64) * 2 * half - half, torch.rand(batch, 1, generator=g, dtype=F64) * 6.4 - 3.2), -1).to(dtype)
 
 
-LIDARS = {
-    "20 rays 180 deg": LidarParams(n_rays=20, fov=math.pi, max_range=8.0),
-    "72 rays 360 deg, offset": LidarParams(n_rays=72, fov=2 * math.pi, max_range=8.0, offset=(0.1, -0.05, 0.3), window=4),
-    "45 rays 270 deg": LidarParams(n_rays=45, fov=math.radians(270), max_range=8.0, window=3),
-    "20 sectors 360 deg": LidarParams(n_rays=20, fov=2 * math.pi, max_range=8.0, scan="sectors", window=0),
-    "12 sectors 120 deg": LidarParams(n_rays=12, fov=math.radians(120), max_range=8.0, scan="sectors", window=1),
+LIDARS = {  # dense_slots below every kind's slot count, so the broad phase runs for all kinds
+    "20 rays 180 deg": LidarParams(n_rays=20, fov=math.pi, max_range=8.0, dense_slots=16),
+    "72 rays 360 deg, offset": LidarParams(n_rays=72, fov=2 * math.pi, max_range=8.0, offset=(0.1, -0.05, 0.3), window=4, dense_slots=16),
+    "45 rays 270 deg": LidarParams(n_rays=45, fov=math.radians(270), max_range=8.0, window=3, dense_slots=16),
+    "20 sectors 360 deg": LidarParams(n_rays=20, fov=2 * math.pi, max_range=8.0, scan="sectors", window=0, dense_slots=16),
+    "12 sectors 120 deg": LidarParams(n_rays=12, fov=math.radians(120), max_range=8.0, scan="sectors", window=1, dense_slots=16),
 }
 
 
@@ -133,3 +133,15 @@ def test_deterministic_and_batch_equals_one_env_at_a_time():
         assert torch.equal(batch, lidar_scan(pose, world, lidar))
         for i in range(8):
             assert torch.equal(lidar_scan(pose[i : i + 1], world[i : i + 1], lidar)[0], batch[i])
+
+
+@pytest.mark.parametrize("family", ["rooms", "corridors", "cave", "forest", "open"])
+def test_defaults_are_exact_on_generated_worlds(family):
+    # The default dense_slots keeps the task's lidars exact on every family, easy to hard.
+    from torchnav.worlds import make_worlds
+
+    for d in (0.0, 0.5, 1.0):
+        b = make_worlds(family, 32, d, torch.Generator().manual_seed(5))
+        for lidar in (LidarParams(n_rays=20, fov=math.pi), LidarParams(n_rays=180, fov=math.pi),
+                      LidarParams(n_rays=20, fov=2 * math.pi, scan="sectors", window=0)):
+            assert scan_is_exact(b.start, b.world, lidar).all(), (family, d, lidar)

@@ -42,7 +42,7 @@ class LidarParams:
     noise_std: float = 0.0  # m, std of additive Gaussian range noise (needs a generator)
     scan: str = "rays"  # "rays": one reading per ray; "sectors": exact nearest distance per wedge
     window: int = 2  # broad phase: each obstacle is tested on the 2 * window + 1 rays nearest its direction
-    dense_slots: int = 16  # broad phase: per kind, this many widest obstacles are tested on every ray
+    dense_slots: int = 64  # broad phase: per kind, up to this many wide obstacles are tested on every ray
 
     def __post_init__(self) -> None:
         _require(isinstance(self.n_rays, int) and self.n_rays >= 1, f"lidar.n_rays must be a positive int, got {self.n_rays!r}")

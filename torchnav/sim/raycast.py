@@ -201,7 +201,7 @@ def _window_and_wide(fan: RayFan, key: str, obs: Tensor, mask: Tensor, window: i
     return fan.index_of(torch.atan2(ry, rx)), wide
 
 
-def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 16, unroll: bool | None = None) -> Tensor:
+def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, unroll: bool | None = None) -> Tensor:
     """Nearest hit distance ``(B, n)`` along every ray of ``fan``, ``inf`` on a miss.
 
     Kinds with at most ``dense_slots`` slots are tested against every ray; larger ones
@@ -256,7 +256,7 @@ def _first_wide(wide: Tensor, k: int) -> tuple[Tensor, Tensor]:
     return picked[:, :k], taken[:, :k]
 
 
-def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 16) -> Tensor:
+def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64) -> Tensor:
     """``(B,)`` bool: True where :func:`cast_fan` equals the every-ray-every-slot cast, i.e. no
     kind of the env has more than ``dense_slots`` obstacles too wide for their window."""
     ok = torch.ones(fan.origin.shape[0], dtype=torch.bool, device=fan.origin.device)

@@ -77,7 +77,7 @@ def _nearest_points(origin: Tensor, world: World) -> tuple[Tensor, Tensor, Tenso
     return torch.cat(dist, 1), torch.cat(phi, 1), torch.cat(valid, 1), inside
 
 
-def sector_ranges(boundaries: RayFan, world: World, window: int = 1, dense_slots: int = 16, unroll: bool | None = None) -> Tensor:
+def sector_ranges(boundaries: RayFan, world: World, window: int = 2, dense_slots: int = 64, unroll: bool | None = None) -> Tensor:
     """Nearest obstacle distance (m) per sector ``(B, S)``, ``inf`` where a sector sees nothing.
 
     ``boundaries`` is the fan of sector boundary rays: ``S + 1`` rays for sectors

@@ -42,7 +42,7 @@ class LidarConfig:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose on the robot: m, m, rad
     scan: str = "rays"  # "rays", or "sectors": n_rays exact wedges (nearest obstacle point in each)
     window: int = 2  # broad phase for many obstacles: rays tested each side of an obstacle's direction
-    dense_slots: int = 16  # broad phase: obstacles per kind tested on every ray (see docs/sim.md)
+    dense_slots: int = 64  # broad phase: obstacles per kind tested on every ray (see docs/sim.md)
 
 
 @dataclass(frozen=True)
