@@ -49,7 +49,10 @@ def test_family_curriculum_raises_only_the_families_above_threshold():
     success = torch.tensor([True, True, False, True])
     family = torch.tensor([0, 0, 1, 1])
     cur = after_family_episodes(cur, cfg, done, success, family)
-    assert cur.difficulty.tolist() == pytest.approx([0.3, 0.2]) and cur.family_success.tolist() == pytest.approx([1.0, 0.0])
+    assert cur.difficulty.tolist() == pytest.approx([0.3, 0.2])
+    assert cur.family_success.tolist() == pytest.approx([0.0, 0.0])  # forest was raised: its average restarts
+    cur = after_family_episodes(cur, cfg, torch.tensor([True, False, True, True]), torch.tensor([False, False, True, True]), family)
+    assert cur.difficulty.tolist() == pytest.approx([0.3, 0.3]) and cur.family_success.tolist() == pytest.approx([0.0, 0.0])
     off = WorldsConfig(families=cfg.families, curriculum=False)
     assert after_family_episodes(cur, off, done, success, family) is cur
 

@@ -75,7 +75,8 @@ def after_episodes(cur: CurriculumState, cfg: CurriculumConfig, done: Tensor, su
 def after_family_episodes(cur: CurriculumState, cfg: WorldsConfig, done: Tensor, success: Tensor, family: Tensor) -> CurriculumState:
     """With ``cfg.curriculum``: fold finished episodes ``done`` ``(B,)`` of world families
     ``family`` ``(B,)`` (indices into ``cfg.families``) into each family's success average,
-    and raise a family's difficulty by ``difficulty_step`` while its average exceeds the threshold."""
+    and raise a family's difficulty by ``difficulty_step`` when its average exceeds the threshold;
+    the raised family's average then restarts from 0."""
     if not cfg.curriculum or cur.difficulty.numel() == 0:
         return cur
     dtype = cur.family_success.dtype
@@ -84,6 +85,8 @@ def after_family_episodes(cur: CurriculumState, cfg: WorldsConfig, done: Tensor,
     mean = (hot * success.to(dtype)[:, None]).sum(0) / n.clamp(min=1)
     keep = (1.0 - cfg.success_smoothing) ** n
     rate = keep * cur.family_success + (1 - keep) * mean
-    grow = (n > 0) & (rate > cfg.success_threshold)
+    grow = (n > 0) & (rate > cfg.success_threshold) & (cur.difficulty < cfg.max_difficulty)
     difficulty = torch.where(grow, cur.difficulty + cfg.difficulty_step, cur.difficulty).clamp(max=cfg.max_difficulty)
-    return replace(cur, difficulty=difficulty, family_success=rate)
+    # A raised family starts its average afresh: it must earn the next level at the new one
+    # (about 1 / success_smoothing episodes), not ride the average of the easier level.
+    return replace(cur, difficulty=difficulty, family_success=torch.where(grow, torch.zeros_like(rate), rate))
