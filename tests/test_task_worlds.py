@@ -106,3 +106,15 @@ def test_planners_refuse_procedural_worlds_by_name():
     env = NavEnv(worlds_cfg(), num_envs=2, seed=0)
     with pytest.raises(ValueError, match="astar planner needs a map"):
         make_controller("astar", nav=env.cfg).bind(env)
+
+
+def test_episodes_on_procedural_worlds_record_with_their_worlds(tmp_path):
+    from torchnav.controllers import make_controller
+    from torchnav.evaluation import record_episodes
+    from torchnav.record.reader import read_recording
+
+    cfg = worlds_cfg()
+    path = tmp_path / "worlds.mcap"
+    record_episodes(make_controller("reactive", nav=cfg), cfg, path, 2, seed=0)
+    episodes = read_recording(path).episodes()
+    assert len(episodes) == 2 and all(ep.start["world"]["segments"] for ep in episodes)

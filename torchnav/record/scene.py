@@ -77,9 +77,11 @@ class EnvStream:
         ang = li.angles()
         self.scan_head = {"frame_id": self.laser, "pose": pose(0.0, 0.0), "start_angle": ang[0], "end_angle": ang[-1]}
         self.laser_tf = (li.offset[0], li.offset[1], li.offset[2])
-        # fallback world: the map's fixed obstacles (NavTask) or the env's only world (LineTask)
+        # fallback world when the env has no state to read worlds from: the map's fixed obstacles
+        # (NavTask on a map; None on procedural worlds, whose worlds always come with the state)
+        # or the env's only world (LineTask)
         bw = getattr(env.task, "base_world", None)
-        self.base_world = bw if bw is not None else env.task.world
+        self.base_world = bw if bw is not None else getattr(env.task, "world", None)
         self.clock = 0  # ticks of dt
         self.episode = -1
         self.in_episode = False

@@ -74,6 +74,7 @@ class NavTask:
         if self.families:
             self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
             self.slots = slot_counts(self.families)  # every episode's world is padded to these
+            self.base_world = None  # every episode brings its own world
         else:
             # Fixed obstacles with every random slot masked off; resets fill the random slots.
             self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
