@@ -244,8 +244,11 @@ def test_shipped_checkpoints_load_and_drive(path):
     if sp.task == "nav":
         from torchnav.evaluation import eval_config, run_episodes
 
-        res = run_episodes(sp.policy, eval_config(cfg), 8, seed=1)
-        assert res["success"].sum() >= 4, f"{path.name} reached only {int(res['success'].sum())}/8 goals on {cfg.map}"
+        # A policy trained on procedural worlds drives its families at an easy level here.
+        easy = cfg.worlds.families and {"difficulty": 0.2}
+        res = run_episodes(sp.policy, eval_config(cfg, worlds=easy or None), 8, seed=1)
+        where = f"its worlds at difficulty 0.2" if easy else cfg.map
+        assert res["success"].sum() >= 4, f"{path.name} reached only {int(res['success'].sum())}/8 goals on {where}"
     else:
         from torchnav.line_evaluation import run_line_episodes
 
