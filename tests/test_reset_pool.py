@@ -44,3 +44,30 @@ def test_pool_request_larger_than_pool():
     assert state.batch_size == torch.Size([8]) and not state.sim.collided.any()
     # distinct episodes, not one copied 8 times
     assert state.start[:, :2].unique(dim=0).shape[0] == 8
+
+
+def test_pool_reuse_serves_each_episode_k_times_then_refills():
+    task = NavTask(NavConfig.from_dict({"map": "arena", "reset": {"pool": 6, "reuse": 3}}), 2)
+    gen = torch.Generator().manual_seed(2)
+    state, cur = task.initial_state(CurriculumState.initial(task.cfg.curriculum), gen)
+    goals = []
+    for _ in range(12):  # 2 envs a reset: 3 resets per pass, 3 passes per pool, then a new pool
+        state, cur = task.reset(state, torch.ones(2, dtype=torch.bool), cur, gen)
+        goals.append(state.goal.clone())
+    first = [torch.cat(goals[3 * p:3 * p + 3]) for p in range(4)]
+    key = lambda g: sorted(map(tuple, g.tolist()))  # noqa: E731
+    # passes 2 and 3 hand out exactly the episodes of pass 1, in another order; pass 4 is a new pool
+    assert key(first[0]) == key(first[1]) == key(first[2])
+    assert not torch.equal(first[0], first[1]) or not torch.equal(first[1], first[2])
+    assert key(first[3]) != key(first[0])
+
+
+def test_pool_reuse_is_validated():
+    import pytest
+
+    from torchnav.config import ConfigError
+
+    with pytest.raises(ConfigError, match="reset.reuse must be an int >= 1"):
+        NavConfig.from_dict({"reset": {"pool": 8, "reuse": 0}})
+    with pytest.raises(ConfigError, match="reset.reuse > 1 needs a pool"):
+        NavConfig.from_dict({"reset": {"reuse": 4}})

@@ -57,6 +57,18 @@ def test_family_curriculum_raises_only_the_families_above_threshold():
     assert after_family_episodes(cur, off, done, success, family) is cur
 
 
+def test_family_curriculum_ignores_episodes_below_the_current_level():
+    # pooled episodes generated before a raise must not raise the family again
+    cfg = WorldsConfig(families={"forest": 1.0}, difficulty=0.2, curriculum=True, success_threshold=0.5, difficulty_step=0.1, success_smoothing=1.0)
+    cur = CurriculumState.initial(NavConfig().curriculum, worlds=cfg)
+    cur = after_family_episodes(cur, cfg, torch.tensor([True]), torch.tensor([True]), torch.tensor([0]), torch.tensor([0.2]))
+    assert cur.difficulty.tolist() == pytest.approx([0.3])
+    stale = after_family_episodes(cur, cfg, torch.tensor([True, True]), torch.tensor([True, True]), torch.tensor([0, 0]), torch.tensor([0.2, 0.2]))
+    assert stale.difficulty.tolist() == pytest.approx([0.3]) and stale.family_success.tolist() == pytest.approx([0.0])
+    fresh = after_family_episodes(cur, cfg, torch.tensor([True, True]), torch.tensor([True, True]), torch.tensor([0, 0]), torch.tensor([0.2, 0.3]))
+    assert fresh.difficulty.tolist() == pytest.approx([0.4])  # the one episode at 0.3 counts
+
+
 def test_curriculum_state_round_trips_and_old_checkpoints_load():
     env = NavEnv(worlds_cfg(curriculum=True), num_envs=4, seed=0)
     env.curriculum.difficulty = torch.tensor([0.4, 0.5, 0.6])

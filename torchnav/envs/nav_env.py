@@ -79,7 +79,8 @@ class NavEnv(BatchedEnv):
         terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
         done = (terminated | truncated)[:, 0]
         self.curriculum = after_episodes(self.curriculum, self.cfg.curriculum, done, out["success"])
-        self.curriculum = after_family_episodes(self.curriculum, self.cfg.worlds, done, out["success"], self._state.family)
+        self.curriculum = after_family_episodes(self.curriculum, self.cfg.worlds, done, out["success"], self._state.family,
+                                                self._state.difficulty)
         td = self._outputs(self._state, out["observation"], out["terms"], out["success"][:, None], out["collision"][:, None])
         td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
         return td

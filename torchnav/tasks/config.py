@@ -90,6 +90,7 @@ class ResetConfig:
     goal_clearance: float = 0.4  # m, distance of the goal point from any obstacle
     candidates: int = 32  # rejection-sampling candidates per env and object
     pool: int = 0  # 0: sample exactly the envs being reset; N > 0: sample N episodes at a time and hand them out
+    reuse: int = 1  # times each pooled episode is handed out (in a fresh order each pass) before the pool is refilled
 
 
 @dataclass(frozen=True)
@@ -136,6 +137,8 @@ class NavConfig:
             (self.observation.history >= 1, "observation.history must be >= 1"),
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),
             (self.reset.pool >= 0, "reset.pool must be >= 0"),
+            (isinstance(self.reset.reuse, int) and self.reset.reuse >= 1, f"reset.reuse must be an int >= 1, got {self.reset.reuse!r}"),
+            (self.reset.reuse == 1 or self.reset.pool > 0 or bool(w.families), "reset.reuse > 1 needs a pool: reset.pool > 0 or procedural worlds"),
             (self.reset.start_clearance >= 0 and self.reset.goal_clearance >= 0, "reset clearances must be >= 0 m"),
             (0 <= w.difficulty <= w.max_difficulty <= 1, "worlds needs 0 <= difficulty <= max_difficulty <= 1"),
             (0 < w.success_threshold < 1 and w.difficulty_step >= 0, "worlds needs 0 < success_threshold < 1 and difficulty_step >= 0"),

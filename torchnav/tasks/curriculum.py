@@ -72,14 +72,21 @@ def after_episodes(cur: CurriculumState, cfg: CurriculumConfig, done: Tensor, su
     return replace(cur, radius=radius, success_rate=rate)
 
 
-def after_family_episodes(cur: CurriculumState, cfg: WorldsConfig, done: Tensor, success: Tensor, family: Tensor) -> CurriculumState:
+def after_family_episodes(cur: CurriculumState, cfg: WorldsConfig, done: Tensor, success: Tensor, family: Tensor,
+                          difficulty: Tensor | None = None) -> CurriculumState:
     """With ``cfg.curriculum``: fold finished episodes ``done`` ``(B,)`` of world families
     ``family`` ``(B,)`` (indices into ``cfg.families``) into each family's success average,
     and raise a family's difficulty by ``difficulty_step`` when its average exceeds the threshold;
-    the raised family's average then restarts from 0."""
+    the raised family's average then restarts from 0.
+
+    ``difficulty`` ``(B,)``, the level each episode was generated at: episodes below their
+    family's current level (pooled episodes generated before the last raise) are not
+    counted, so a family cannot climb on the success of worlds easier than its level."""
     if not cfg.curriculum or cur.difficulty.numel() == 0:
         return cur
     dtype = cur.family_success.dtype
+    if difficulty is not None:
+        done = done & (difficulty >= cur.difficulty[family] - 1e-6)
     hot = torch.nn.functional.one_hot(family, cur.difficulty.numel()).to(dtype) * done.to(dtype)[:, None]  # (B, F)
     n = hot.sum(0)
     mean = (hot * success.to(dtype)[:, None]).sum(0) / n.clamp(min=1)

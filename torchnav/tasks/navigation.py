@@ -82,7 +82,7 @@ class NavTask:
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
         self._pool: NavState | None = None  # pre-sampled episodes (cfg.reset.pool > 0)
-        self._pool_pos = 0
+        self._pool_pos = self._pool_passes = 0
 
     # -- actions and observations -------------------------------------------------
 
@@ -193,11 +193,17 @@ class NavTask:
         a pool a reset costs an index copy most of the time. Goals and difficulties
         come from the curriculum at the time the pool was filled. With procedural
         worlds a pool is always used (``reset.pool`` 0 means ``num_envs`` episodes).
+        With ``reset.reuse = k`` the pool is handed out ``k`` times, each pass in a
+        fresh order, before it is refilled (generating a world costs milliseconds).
         """
-        if self._pool is None or self._pool_pos + n > self._pool.batch_size[0]:
+        size = 0 if self._pool is None else self._pool.batch_size[0]
+        if self._pool is not None and self._pool_pos + n > size and self._pool_passes < self.cfg.reset.reuse:
+            self._pool = self._pool[torch.randperm(size, generator=gen, device=gen.device).to(self.device)]
+            self._pool_pos, self._pool_passes = 0, self._pool_passes + 1
+        if self._pool is None or self._pool_pos + n > size:
             size = max(self.cfg.reset.pool or self.num_envs, n)
             self._pool = self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, gen)
-            self._pool_pos = 0
+            self._pool_pos, self._pool_passes = 0, 1
         out = self._pool[self._pool_pos : self._pool_pos + n]
         self._pool_pos += n
         return out
