@@ -10,14 +10,18 @@ would), times the whole command with a wall clock, and reads each run's
 ``summary.json``. Prints one Markdown row per seed and the mean (sd): final score
 (success rate for navigation, lap-completion rate for line following) over
 ``eval.final_episodes`` episodes with its 95% interval, whole-command wall time,
-training wall time, and when periodic evaluation first reached ``eval.target_success``.
-``--json`` also writes the table as JSON. Use an otherwise idle machine: on 2 cores
-another busy process makes every figure meaningless (docs/performance.md).
+training wall time, when periodic evaluation first reached ``eval.target_success``
+(seconds from the command's start, and frames), and the frames/s of collection, of
+the updates and of both together (periodic evaluation excluded). ``--busy N`` runs N
+CPU-bound processes next to every run (the load of a user's other work); ``--json``
+also writes the table as JSON. Otherwise use an idle machine: on 2 cores another
+busy process changes every figure (docs/performance.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
@@ -40,7 +44,7 @@ def run_seed(recipe: str, seed: int, out: Path, overrides: list[str]) -> dict:
     cmd = [sys.executable, str(ROOT / "recipes" / f"{recipe}.py"), f"seed={seed}", f"logger.run_dir={run}",
            "logger.progress=false", *overrides]
     print(f"$ {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
-    t0 = time.perf_counter()
+    t0, launched = time.perf_counter(), time.time()
     p = subprocess.run(cmd, cwd=ROOT, env={**os.environ, "RL_WARNINGS": "False"}, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     wall = time.perf_counter() - t0
     if p.returncode != 0:
@@ -49,28 +53,49 @@ def run_seed(recipe: str, seed: int, out: Path, overrides: list[str]) -> dict:
     key, sc = score_of(summary["eval"])
     return {"seed": seed, "score_key": key, "score": sc["rate"], "ci95": sc["ci95"], "episodes": summary["eval"]["episodes"],
             "command_wall_s": wall, "train_wall_s": summary["train_wall_s"], "time_to_target_s": summary["time_to_target_s"],
+            "command_to_target_s": summary["target_unix"] - launched if summary.get("target_unix") else None,
+            "collect_fps": summary["frames"] / max(summary["collect_s"], 1e-9),
+            "update_fps": summary["frames"] / max(summary["update_s"], 1e-9),
+            "train_fps": summary["frames"] / max(summary["collect_s"] + summary["update_s"], 1e-9),
             "frames": summary["frames"], "frames_to_target": summary["frames_to_target"], "run_dir": str(run)}
 
 
-def _mean_sd(xs: list[float]) -> str:
+def _mean_sd(xs: list[float], digits: int = 1) -> str:
     if not xs:
         return "never"
-    return f"{statistics.mean(xs):.1f} ({statistics.stdev(xs):.1f})" if len(xs) > 1 else f"{xs[0]:.1f}"
+    f = f",.{digits}f"
+    return f"{statistics.mean(xs):{f}} ({statistics.stdev(xs):{f}})" if len(xs) > 1 else f"{xs[0]:{f}}"
 
 
-def table(recipe: str, rows: list[dict]) -> str:
+def table(recipe: str, rows: list[dict], busy: int = 0) -> str:
     key = rows[0]["score_key"]
-    lines = [f"| seed | {key} ({rows[0]['episodes']} episodes) | 95% CI | whole command | training | eval first >= target at |",
-             "|---:|---:|---|---:|---:|---:|"]
+    lines = [f"| seed | {key} ({rows[0]['episodes']} episodes) | 95% CI | whole command | training | "
+             "eval first >= target, from command start | frames/s: collection | updates | both |",
+             "|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        ttt = f"{r['time_to_target_s']:.0f} s ({r['frames_to_target']:,} frames)" if r["time_to_target_s"] is not None else "never"
+        ttt = f"{r['command_to_target_s']:.0f} s ({r['frames_to_target']:,} frames)" if r["command_to_target_s"] is not None else "never"
         lines.append(f"| {r['seed']} | {100 * r['score']:.1f}% | [{100 * r['ci95'][0]:.1f}, {100 * r['ci95'][1]:.1f}] | "
-                     f"{r['command_wall_s'] / 60:.1f} min | {r['train_wall_s']:.0f} s | {ttt} |")
-    reached = [r["time_to_target_s"] for r in rows if r["time_to_target_s"] is not None]
+                     f"{r['command_wall_s']:.0f} s | {r['train_wall_s']:.0f} s | {ttt} | "
+                     f"{r['collect_fps']:,.0f} | {r['update_fps']:,.0f} | {r['train_fps']:,.0f} |")
+    reached = [r["command_to_target_s"] for r in rows if r["command_to_target_s"] is not None]
     lines.append(f"| **mean (sd)** | **{_mean_sd([100 * r['score'] for r in rows])}%** | | "
-                 f"{_mean_sd([r['command_wall_s'] / 60 for r in rows])} min | {_mean_sd([r['train_wall_s'] for r in rows])} s | "
-                 f"{_mean_sd(reached)} s ({len(reached)}/{len(rows)} seeds) |")
-    return f"{recipe}\n\n" + "\n".join(lines)
+                 f"{_mean_sd([r['command_wall_s'] for r in rows])} s | {_mean_sd([r['train_wall_s'] for r in rows])} s | "
+                 f"{_mean_sd(reached) + (' s' if reached else '')} ({len(reached)}/{len(rows)} seeds) | {_mean_sd([r['collect_fps'] for r in rows], 0)} | "
+                 f"{_mean_sd([r['update_fps'] for r in rows], 0)} | {_mean_sd([r['train_fps'] for r in rows], 0)} |")
+    title = recipe + (f", next to {busy} busy process{'es' if busy > 1 else ''}" if busy else "")
+    return f"{title}\n\n" + "\n".join(lines)
+
+
+@contextlib.contextmanager
+def busy_processes(n: int):
+    """``n`` processes that spin on the CPU until the block ends: the load of a user's other work."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield procs
+    finally:
+        for pr in procs:
+            pr.kill()
+            pr.wait()
 
 
 def main(argv: list[str]) -> list[dict]:
@@ -84,15 +109,19 @@ def main(argv: list[str]) -> list[dict]:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--out", default=None, help="parent of the run directories (default runs/bench_<recipe>)")
     p.add_argument("--json", default=None, help="also write the rows as JSON here")
+    p.add_argument("--busy", type=int, default=0, help="run this many CPU-bound processes next to each run (contention)")
     a = p.parse_args(argv)
     out = Path(a.out or ROOT / "runs" / f"bench_{a.recipe}")
     load = os.getloadavg()[0]
     if load > 0.5:
         print(f"warning: load average {load:.2f} before the first run; timings need an idle machine", file=sys.stderr)
-    rows = [run_seed(a.recipe, s, out, overrides) for s in a.seeds]
-    print(table(a.recipe, rows))
+    if a.busy < 0:
+        raise SystemExit("--busy must be >= 0")
+    with busy_processes(a.busy):
+        rows = [run_seed(a.recipe, s, out, overrides) for s in a.seeds]
+    print(table(a.recipe, rows, a.busy))
     if a.json:
-        Path(a.json).write_text(json.dumps({"recipe": a.recipe, "overrides": overrides, "rows": rows}, indent=2))
+        Path(a.json).write_text(json.dumps({"recipe": a.recipe, "overrides": overrides, "busy": a.busy, "rows": rows}, indent=2))
     return rows
 
 

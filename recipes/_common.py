@@ -5,12 +5,14 @@ Kept out of ``torchnav/`` on purpose: the package never imports recipes.
 
 from __future__ import annotations
 
+import argparse
 import datetime as _dt
 import json
 import os
 import random
 import signal
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -164,6 +166,84 @@ def find_resume_dir(cfg: DictConfig) -> Path | None:
     return Path(str(r))
 
 
+class ThreadGovernor:
+    """torch's CPU thread count, chosen from the cores other processes leave free and re-checked as a run goes.
+
+    Two torch threads on two cores collapse when another process is busy: OpenMP's
+    threads spin waiting for each other while one of them is descheduled (PPO's default
+    run took 164 s next to one busy process instead of 49 s; with one thread, 60 s;
+    docs/performance.md#contention). ``threads: auto`` therefore measures, over each
+    ``interval`` s, the CPU time of the whole machine (``/proc/stat``) less this
+    process's own (``os.times``), and sets as many threads as cores are left free:
+    at least 1, at most the cores this process may use. A fixed ``threads: N`` sets N
+    once and never changes it; so does ``auto`` where ``/proc/stat`` is missing or
+    counts other cores than this process may use (not Linux, some containers).
+    """
+
+    STAT = Path("/proc/stat")
+
+    def __init__(self, setting: Any, interval: float = 5.0, probe: float = 0.2) -> None:
+        self.cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        self.auto = setting in ("auto", None) and self._machine_cores() == self.cores
+        if setting not in ("auto", None) and not (isinstance(setting, int) and not isinstance(setting, bool) and setting >= 1):
+            raise ConfigError(f"threads must be 'auto' or an int >= 1, got {setting!r}")
+        self.threads = self.cores if setting in ("auto", None) else int(setting)
+        self.interval = float(interval)
+        self.changes: list[tuple[float, int, float]] = []  # (time in the run s, threads, other processes' cores)
+        self._t0 = time.monotonic()
+        if self.auto:
+            self._mark = self._sample()
+            time.sleep(probe)  # a first look before any work
+            self.update(force=True)
+        torch.set_num_threads(self.threads)
+
+    def _machine_cores(self) -> int:
+        try:
+            return sum(1 for line in self.STAT.read_text().splitlines() if line.startswith("cpu") and line[3:4].isdigit())
+        except OSError:
+            return -1
+
+    def _sample(self) -> tuple[float, float, float]:
+        """(wall s, busy CPU s of the machine, CPU s of this process)."""
+        f = [int(x) for x in self.STAT.read_text().split("\n", 1)[0].split()[1:]]
+        busy = sum(f) - f[3] - (f[4] if len(f) > 4 else 0)  # all but idle and iowait; guest time is inside user
+        if len(f) > 8:
+            busy -= sum(f[8:10])
+        t = os.times()
+        return time.monotonic(), busy / os.sysconf("SC_CLK_TCK"), t.user + t.system
+
+    def others(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
+        """Cores used by other processes between samples ``a`` and ``b``."""
+        wall = max(b[0] - a[0], 1e-6)
+        return max(0.0, ((b[1] - a[1]) - (b[2] - a[2])) / wall)
+
+    def update(self, force: bool = False) -> int | None:
+        """Re-check (at most every ``interval`` s); returns the new thread count when it changed."""
+        if not self.auto or (not force and time.monotonic() - self._mark[0] < self.interval):
+            return None
+        now = self._sample()
+        others = self.others(self._mark, now)
+        self._mark = now
+        want = max(1, min(self.cores, round(self.cores - others)))
+        if want == self.threads and not force:
+            return None
+        changed = want != self.threads or not self.changes
+        self.threads = want
+        torch.set_num_threads(want)
+        if changed:
+            self.changes.append((round(now[0] - self._t0, 1), want, round(others, 2)))
+        return want if changed else None
+
+
+def threads_arg(text: str) -> str | int:
+    """argparse type of ``--threads``: ``auto`` or a positive int."""
+    if text == "auto":
+        return text
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"expected 'auto' or an int >= 1, got {text!r}")
+    return int(text)
+
+
 class StopFlag:
     """Turns SIGTERM and SIGINT into a flag the training loop polls, so it can checkpoint and exit."""
 
@@ -195,6 +275,6 @@ def config_dict(cfg: DictConfig) -> dict[str, Any]:
 
 __all__ = [
     "load_config", "nav_config", "make_run_dir", "save_config", "make_logger", "seed_everything", "rng_states",
-    "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume_dir", "StopFlag", "write_json",
+    "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume_dir", "StopFlag", "ThreadGovernor", "write_json",
     "config_dict", "to_dict",
 ]

@@ -158,8 +158,7 @@ class Trainer:
             if self.ckpt.get("format") != ckpt_format:
                 raise C.ConfigError(f"{resume_dir / 'checkpoint.pt'} is not a {name} checkpoint (format {self.ckpt.get('format')!r})")
             cfg.logger.run_dir = str(resume_dir)
-        if cfg.threads:
-            torch.set_num_threads(int(cfg.threads))
+        self.threads = C.ThreadGovernor(cfg.threads)
         C.seed_everything(cfg.seed)
         self.device = torch.device(cfg.device)
         self.task = adapter.from_recipe(cfg)
@@ -167,8 +166,12 @@ class Trainer:
         C.save_config(cfg, self.run)
         self.logger = C.make_logger(cfg, self.run)
         self.env = self.task.make_env(int(cfg.env.num_envs), self.device, int(cfg.seed))
+        # collect_s / update_s / eval_s: where the training wall time went (progress output, summary.json);
+        # target_unix: the clock time (time.time()) periodic evaluation first reached eval.target_success,
+        # so a benchmark that launched the command can tell the time from its start
         self.counters: dict[str, Any] = {"frames": 0, "updates": 0, "batches": 0, "wall_time": 0.0,
-                                         "time_to_target": None, "frames_to_target": None}
+                                         "collect_s": 0.0, "update_s": 0.0, "eval_s": 0.0,
+                                         "time_to_target": None, "frames_to_target": None, "target_unix": None}
         # the deterministic actor to evaluate and save; each recipe sets this after building its networks
         self.export_actor: Callable[[], Actor] = self._no_actor
 
@@ -227,7 +230,10 @@ class Trainer:
         t_start = time.perf_counter() - c["wall_time"]
         losses: dict[str, float] = {}
         try:
+            t_mark = time.perf_counter()
             for batch in collector or ():
+                t_got = time.perf_counter()
+                c["collect_s"] += t_got - t_mark
                 n = batch.numel()
                 c["frames"] += n
                 c["batches"] += 1
@@ -235,30 +241,37 @@ class Trainer:
                     on_frames(n)
                 self._episode_stats(batch.reshape(-1), recent)
                 losses = update(batch) or losses
-                c["wall_time"] = time.perf_counter() - t_start
+                t_mark = time.perf_counter()
+                c["update_s"] += t_mark - t_got
+                c["wall_time"] = t_mark - t_start
                 rates = {k: sum(r[i] for r in recent) / max(len(recent), 1) for i, k in enumerate(self.task.outcome_keys)}
                 fps = c["frames"] / max(c["wall_time"], 1e-9)
                 bar.update(n)
                 bar.set_postfix_str(" ".join(f"{k} {100 * v:.0f}%" for k, v in rates.items()) + f" {self.task.status(self.env)} {fps:,.0f} fr/s")
                 if c["batches"] % 10 == 0:
                     for k, v in {**{f"train/{k}_rate": v for k, v in rates.items()}, "perf/frames_per_s": fps,
-                                 "time/wall_s": c["wall_time"], **{f"loss/{k}": v for k, v in losses.items()},
+                                 "time/wall_s": c["wall_time"], **{f"loss/{k}": float(v) for k, v in losses.items()},
                                  **self.task.scalars(self.env)}.items():
                         log.log_scalar(k, v, step=c["frames"])
                 if cfg.eval.interval_frames and c["frames"] - last_eval >= cfg.eval.interval_frames:
                     last_eval = c["frames"]
+                    t_eval = time.perf_counter()
                     s = self.evaluate(int(cfg.eval.episodes), 10_000 + int(cfg.seed))
+                    c["eval_s"] += time.perf_counter() - t_eval
                     c["wall_time"] = time.perf_counter() - t_start
                     _log_rates(log, "eval", s, c["frames"])
                     log.log_scalar("eval/wall_s", c["wall_time"], step=c["frames"])
                     bar.write(f"[eval @ {c['frames']:,} frames, {c['wall_time']:.0f} s] {self.task.describe(s)}")
                     if c["time_to_target"] is None and s["score"] >= cfg.eval.target_success:
-                        c["time_to_target"], c["frames_to_target"] = c["wall_time"], c["frames"]
+                        c["time_to_target"], c["frames_to_target"], c["target_unix"] = c["wall_time"], c["frames"], time.time()
                 if c["frames"] - last_ckpt >= cfg.checkpoint.interval_frames:
                     last_ckpt = c["frames"]
                     self.save(algo_state, meta)
+                if self.threads.update() is not None:
+                    bar.write(f"[threads] {self.threads.threads} (other processes use {self.threads.changes[-1][2]:.1f} of {self.threads.cores} cores)")
                 if stop.stop:
                     break
+                t_mark = time.perf_counter()  # checkpoints and evaluation are not collection
         except KeyboardInterrupt:
             print("\ninterrupted: writing a checkpoint", file=sys.stderr)
             stop.stop = True
@@ -292,7 +305,10 @@ class Trainer:
         result = {
             "run_dir": str(self.run), **self.task.info(), "frames": c["frames"], "updates": c["updates"],
             "train_wall_s": c["wall_time"], "time_to_target_s": c["time_to_target"],
-            "frames_to_target": c["frames_to_target"], "eval": summary, "eval_wall_s": time.perf_counter() - t0,
+            "frames_to_target": c["frames_to_target"], "target_unix": c["target_unix"],
+            "collect_s": c["collect_s"], "update_s": c["update_s"], "periodic_eval_s": c["eval_s"],
+            "threads": self.threads.changes or self.threads.threads,  # [(s into the run, threads, others' cores)] with auto
+            "eval": summary, "eval_wall_s": time.perf_counter() - t0,
         }
         _log_rates(self.logger, "final", summary, c["frames"])
         if cfg.eval.record_episodes:
@@ -303,6 +319,8 @@ class Trainer:
         C.write_json(self.run / "summary.json", result)
         print()
         print(self.task.format(summary))
+        print(f"  time: collection {c['collect_s']:.0f} s ({c['frames'] / max(c['collect_s'], 1e-9):,.0f} frames/s), "
+              f"updates {c['update_s']:.0f} s ({c['frames'] / max(c['update_s'], 1e-9):,.0f} frames/s), periodic evaluation {c['eval_s']:.0f} s")
         print(f"  trained {c['frames']:,} frames, {c['updates']:,} updates in {c['wall_time']:.0f} s"
               + (f"; reached {100 * cfg.eval.target_success:.0f}% at {c['time_to_target']:.0f} s" if c["time_to_target"] else ""))
         print(f"  run directory: {self.run}  (actor.pt, checkpoint.pt, summary.json, logs/)")

@@ -30,6 +30,8 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+import _common as C
+
 from torchnav.config import ConfigError, to_dict
 from torchnav.controllers import CONTROLLERS, make_controller
 from torchnav.envs import NavEnv
@@ -207,7 +209,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     p.add_argument("--scenarios", type=int, default=3, help="scenarios per map drawn in trajectories.png (default 3; 0: no picture)")
     p.add_argument("--out", default="runs/compare", help="output directory (default runs/compare)")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=C.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
     a = p.parse_args(argv)
     if a.episodes < 1:
         p.error("--episodes must be >= 1")
@@ -217,7 +219,7 @@ def main(argv: list[str]) -> dict[str, Any]:
             p.error(f"unknown controller {name!r}; available: {', '.join(CONTROLLERS)}")
     if not controllers and not a.checkpoints:
         p.error("nothing to compare: give checkpoints or controllers")
-    torch.set_num_threads(a.threads)
+    C.ThreadGovernor(a.threads)
     specs = {}
     for m in a.maps:
         try:

@@ -50,7 +50,7 @@ def main(argv: list[str]) -> dict:
     p.add_argument("--seed", type=int, default=20_000, help="scenario seed (default 20000)")
     p.add_argument("--curriculum", action="store_true", help="keep the training curriculum's goal radius instead of goals anywhere")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--threads", type=C.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
     p.add_argument("--json", default=None, help="write the results as JSON to this path")
     p.add_argument("--record", type=int, default=0, help="write this many episodes to an MCAP file")
     p.add_argument("--record-path", default=None, help="MCAP path (default: eval_episodes.mcap beside the checkpoint)")
@@ -58,7 +58,7 @@ def main(argv: list[str]) -> dict:
     a = p.parse_args(argv)
     if a.episodes < 1:
         p.error("--episodes must be >= 1")
-    torch.set_num_threads(a.threads)
+    C.ThreadGovernor(a.threads)
     ckpt = Path(a.checkpoint)
     sp = load_policy(ckpt)
     actor = sp.policy.to(a.device)

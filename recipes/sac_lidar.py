@@ -22,15 +22,20 @@ from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-from torchrl.modules import ProbabilisticActor, TanhNormal
+from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 from _train import Trainer, main_guard, replay_update  # noqa: E402
-from td3_lidar import make_critic  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
+
+
+def make_critic(obs_size: int, act_size: int, hidden) -> ValueOperator:
+    """Q(s, a): an MLP over the concatenated observation and action."""
+    net = MLP(in_features=obs_size + act_size, out_features=1, num_cells=list(hidden), activation_class=nn.ReLU)
+    return ValueOperator(net, in_keys=["observation", "action"])
 
 
 def main(argv: list[str]) -> dict:

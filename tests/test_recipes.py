@@ -226,7 +226,17 @@ def test_training_bench_runs_seeds_and_tabulates(tmp_path):
     assert len(rows) == 1 and rows[0]["seed"] == 3 and rows[0]["score_key"] == "lap_complete"
     assert 0.0 <= rows[0]["score"] <= 1.0 and rows[0]["command_wall_s"] > 0
     assert json.loads((tmp_path / "t.json").read_text())["rows"][0]["frames"] == 256
+    assert rows[0]["collect_fps"] > 0 and rows[0]["update_fps"] > 0 and rows[0]["train_fps"] > 0
     assert "| 3 |" in training.table("ppo_line", rows)
+
+
+def test_training_bench_busy_processes_run_and_are_stopped():
+    sys.path.insert(0, str(ROOT / "bench"))
+    import training
+
+    with training.busy_processes(2) as procs:
+        assert len(procs) == 2 and all(pr.poll() is None for pr in procs)  # spinning while the block runs
+    assert all(pr.poll() is not None for pr in procs)  # and gone after it
 
 
 SHIPPED = sorted((ROOT / "checkpoints").glob("*.pt"))

@@ -1,0 +1,64 @@
+"""The recipes' thread governor: fewer torch threads while another process keeps a core busy."""
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "recipes"))
+import _common as C  # noqa: E402
+
+needs_proc_stat = pytest.mark.skipif(not Path("/proc/stat").is_file(), reason="auto threads read /proc/stat (Linux)")
+
+
+def test_fixed_and_invalid_settings():
+    before = torch.get_num_threads()
+    try:
+        g = C.ThreadGovernor(1)
+        assert g.threads == 1 and not g.auto and torch.get_num_threads() == 1
+        assert g.update(force=True) is None  # a fixed count never changes
+        for bad in ("x", 0, -2, 1.5, True):
+            with pytest.raises(C.ConfigError, match="threads must be 'auto' or an int >= 1"):
+                C.ThreadGovernor(bad)
+    finally:
+        torch.set_num_threads(before)
+
+
+@needs_proc_stat
+def test_auto_gives_a_core_to_a_busy_process_and_takes_it_back():
+    before = torch.get_num_threads()
+    try:
+        g = C.ThreadGovernor("auto", interval=0.5)
+        if not g.auto or g.cores < 2:
+            pytest.skip("needs 2 or more cores counted alike by /proc/stat and the affinity mask")
+        others = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(g.cores - 1)]
+        try:
+            time.sleep(1.5)  # let them start
+            g._mark = g._sample()
+            time.sleep(1.0)
+            g.update()
+            assert g.threads == 1 and torch.get_num_threads() == 1, g.changes
+        finally:
+            for p in others:
+                p.kill()
+                p.wait()
+        time.sleep(0.2)
+        g._mark = g._sample()
+        time.sleep(1.0)
+        g.update()
+        assert g.threads == g.cores, g.changes
+        assert [c[1] for c in g.changes][-2:] == [1, g.cores]
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_threads_arg():
+    assert C.threads_arg("auto") == "auto" and C.threads_arg("3") == 3
+    import argparse
+
+    for bad in ("0", "-1", "two"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            C.threads_arg(bad)
