@@ -325,6 +325,21 @@ def test_non_finite_action_raises_by_default(bad):
         env.step(td)
 
 
+@pytest.mark.parametrize("env_kind", ["nav", "line"])
+def test_action_of_the_wrong_shape_is_refused_by_both_envs(env_kind):
+    from torchnav.envs import LineEnv
+    from torchnav.tasks import LineConfig
+
+    env = make_env("arena", num_envs=3) if env_kind == "nav" else LineEnv(LineConfig(), num_envs=3)
+    td = env.reset()
+    td["action"] = torch.zeros(3, 3)  # one value too many per env: once silently ignored by NavEnv
+    with pytest.raises(ValueError, match=r"action has shape \(3, 3\), expected \(3, 2\)"):
+        env.step(td)
+    for shape in [(3, 1), (2, 2), (3,)]:  # shapes a tensordict of batch (3,) cannot hold, as a caller's own may
+        with pytest.raises(ValueError, match=r"action has shape .*expected \(3, 2\)"):
+            env._step(TensorDict({"action": torch.zeros(shape)}, batch_size=[]))
+
+
 def test_non_finite_action_without_the_check_stops_the_robot():
     env = make_env("arena", num_envs=2, check_actions=False)
     td = env.reset()
@@ -394,3 +409,24 @@ def test_env_on_cuda():
     check_env_specs(env)
     r = env.rollout(20, break_when_any_done=False)
     assert r.device.type == "cuda" and torch.isfinite(r["next", "observation"]).all()
+
+
+@pytest.mark.slow
+def test_compiled_step_matches_eager():
+    """NavEnv(compile_step=True) runs the simulator step through torch.compile: same episodes."""
+    from torchnav.envs import make_env
+
+    runs = []
+    for compiled in (False, True):
+        env = make_env("arena", num_envs=8, seed=3)
+        if compiled:
+            env.task.compile_step()
+        td = env.reset()
+        gen = torch.Generator().manual_seed(0)
+        obs = []
+        for _ in range(30):
+            td["action"] = torch.rand(8, 2, generator=gen) * 2 - 1
+            _, td = env.step_and_maybe_reset(td)
+            obs.append(td["observation"].clone())
+        runs.append(torch.stack(obs))
+    torch.testing.assert_close(runs[1], runs[0], atol=1e-4, rtol=1e-4)

@@ -36,8 +36,12 @@ class BatchedEnv(EnvBase):
         self.done_spec = Composite(done=self._flag_spec(), terminated=self._flag_spec(), truncated=self._flag_spec(), shape=b, device=dev)
 
     def _checked_action(self, tensordict) -> torch.Tensor:
-        """The ``"action"``; with ``cfg.check_actions`` a NaN or inf raises naming the envs (one host sync)."""
+        """The ``"action"``, of the action spec's shape (else a ValueError naming both shapes); with
+        ``cfg.check_actions`` a NaN or inf raises naming the envs (one host sync)."""
         action = tensordict.get("action")
+        if action.shape != self.action_spec.shape:
+            raise ValueError(f"{type(self).__name__}.step: action has shape {tuple(action.shape)}, expected {tuple(self.action_spec.shape)} "
+                             f"({self.action_spec.shape[-1]} values per env for {self.num_envs} envs)")
         if self.cfg.check_actions and not torch.isfinite(action).all():
             bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
             raise ValueError(
