@@ -63,7 +63,7 @@ def main(argv: list[str]) -> dict:
         torch.nn.utils.clip_grad_norm_(loss.parameters(), float(tc.max_grad_norm))
         optim.step()
         target_update.step()
-        return {"qvalue": lv["loss"].item(), "epsilon": exploration.eps.item()} if t.counters["batches"] % 10 == 0 else {}
+        return {"qvalue": lv["loss"].detach(), "epsilon": exploration.eps.detach()}  # read only when logged
 
     remaining = t.remaining_frames()
     collector = Collector(

@@ -95,7 +95,6 @@ def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -
         with torch.no_grad():
             gae(batch)
         flat = batch.reshape(-1)
-        out = {}
         for _ in range(int(tc.epochs)):
             for idx in torch.randperm(flat.numel(), device=device).split(mb):
                 lv = loss(flat[idx])
@@ -105,9 +104,8 @@ def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -
                 torch.nn.utils.clip_grad_norm_(loss.parameters(), float(tc.max_grad_norm))
                 optim.step()
                 t.counters["updates"] += 1
-        if t.counters["batches"] % 10 == 0:
-            out = {k: lv[k].item() for k in ("loss_objective", "loss_critic", "loss_entropy")}
-            out["log_std"] = params.module.log_std.mean().item()
+        out = {k: lv[k].detach() for k in ("loss_objective", "loss_critic", "loss_entropy")}  # read only when logged
+        out["log_std"] = params.module.log_std.detach().mean()
         return out
 
     remaining = t.remaining_frames()

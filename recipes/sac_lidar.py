@@ -76,9 +76,7 @@ def main(argv: list[str]) -> dict:
         for o in opts:
             o.step()
         target_update.step()
-        if t.counters["batches"] % 10:
-            return {}
-        return {k: lv[k].item() for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}
+        return {k: lv[k].detach() for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}  # read only when logged
 
     remaining = t.remaining_frames()
     collector = Collector(
