@@ -89,7 +89,7 @@ def nav_config(cfg: DictConfig, **extra: Any) -> NavConfig:
     """The NavConfig described by a recipe config's ``env``, ``curriculum``, ``reward`` and ``task`` sections."""
     d: dict[str, Any] = OmegaConf.to_container(cfg.task, resolve=True)  # type: ignore[assignment]
     env = OmegaConf.to_container(cfg.env, resolve=True)
-    nav = {k: v for k, v in env.items() if k not in ("num_envs",)}
+    nav = {k: v for k, v in env.items() if k not in ("num_envs", "compile_step")}
     d = merge(d, nav)
     d = merge(d, {"curriculum": OmegaConf.to_container(cfg.curriculum, resolve=True), "reward": OmegaConf.to_container(cfg.reward, resolve=True)})
     return NavConfig.from_dict(merge(d, extra), where="config")

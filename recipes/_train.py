@@ -36,16 +36,19 @@ class NavAdapter:
     name = "nav"
     outcome_keys = ("success", "collision")  # flags read from the next state of finished training episodes
 
-    def __init__(self, config, anywhere: bool = True) -> None:
-        self.config = config
+    def __init__(self, config, anywhere: bool = True, compile_step: bool = False) -> None:
+        self.config, self.compile_step = config, bool(compile_step)
         self.eval_config = eval_config(config, anywhere=anywhere)
 
     @classmethod
     def from_recipe(cls, cfg) -> "NavAdapter":
-        return cls(C.nav_config(cfg))
+        compile_step = cfg.env.get("compile_step", False)
+        if not isinstance(compile_step, bool):
+            raise C.ConfigError(f"env.compile_step must be true or false, got {compile_step!r}")
+        return cls(C.nav_config(cfg), compile_step=compile_step)
 
     def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
-        return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed)
+        return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed, compile_step=self.compile_step)
 
     def evaluate(self, policy, episodes: int, seed: int, device) -> dict[str, Any]:
         s = summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device))

@@ -22,11 +22,14 @@ from .base import BatchedEnv
 class NavEnv(BatchedEnv):
     """Batched lidar navigation (see docs/tasks.md for observation, action and reward)."""
 
-    def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
+    def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0,
+                 compile_step: bool = False):
         cfg = cfg or NavConfig()
         super().__init__(num_envs, device, seed)
         self.cfg = cfg
         self.task = NavTask(cfg, num_envs, device=self.device)
+        if compile_step:  # the simulator step through torch.compile (not TorchRL's `compile`, which compiles the whole env step)
+            self.task.compile_step()
         self.curriculum = CurriculumState.initial(cfg.curriculum, device=self.device, worlds=cfg.worlds)
         self._state: NavState | None = None
         self._make_specs()
