@@ -183,10 +183,10 @@ class ThreadGovernor:
     STAT = Path("/proc/stat")
 
     def __init__(self, setting: Any, interval: float = 5.0, probe: float = 0.2) -> None:
-        self.cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        self.auto = setting in ("auto", None) and self._machine_cores() == self.cores
         if setting not in ("auto", None) and not (isinstance(setting, int) and not isinstance(setting, bool) and setting >= 1):
             raise ConfigError(f"threads must be 'auto' or an int >= 1, got {setting!r}")
+        self.cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        self.auto = setting in ("auto", None) and self._machine_cores() == self.cores
         self.threads = self.cores if setting in ("auto", None) else int(setting)
         self.interval = float(interval)
         self.changes: list[tuple[float, int, float]] = []  # (time in the run s, threads, other processes' cores)
@@ -218,21 +218,19 @@ class ThreadGovernor:
         return max(0.0, ((b[1] - a[1]) - (b[2] - a[2])) / wall)
 
     def update(self, force: bool = False) -> int | None:
-        """Re-check (at most every ``interval`` s); returns the new thread count when it changed."""
+        """Re-check (at most every ``interval`` s, any time with ``force``); returns the new thread count when it changed."""
         if not self.auto or (not force and time.monotonic() - self._mark[0] < self.interval):
             return None
         now = self._sample()
         others = self.others(self._mark, now)
         self._mark = now
         want = max(1, min(self.cores, round(self.cores - others)))
-        if want == self.threads and not force:
+        if want == self.threads and self.changes:  # the first look is always recorded
             return None
-        changed = want != self.threads or not self.changes
         self.threads = want
         torch.set_num_threads(want)
-        if changed:
-            self.changes.append((round(now[0] - self._t0, 1), want, round(others, 2)))
-        return want if changed else None
+        self.changes.append((round(now[0] - self._t0, 1), want, round(others, 2)))
+        return want
 
 
 def threads_arg(text: str) -> str | int:
