@@ -3,7 +3,7 @@
 import torch
 
 from torchnav.maps import load_map
-from torchnav.sim import cat_worlds, lidar_scan, pad_world, points_clearance
+from torchnav.sim import World, cat_worlds, make_world, lidar_scan, pad_world, points_clearance
 from torchnav.sim.params import LidarParams
 
 
@@ -29,3 +29,23 @@ def test_cat_worlds_keeps_each_env_its_own_world():
     assert torch.equal(both[:2], lidar_scan(pose[:2], a, lidar))
     assert torch.equal(both[2:], lidar_scan(pose[2:], m, lidar))
     assert not torch.equal(both[0], both[2])
+
+
+def test_planar_world_same_values_component_major_and_differentiable():
+    from torchnav.sim.state import planar_world
+
+    base = make_world(3, segments=[[-3, -3, 3, -3], [3, -3, 3, 3]], circles=[[1.0, 1.0, 0.3], [-1.5, 0.0, 0.1]],
+                      boxes=[[-1.0, 1.0, 0.3, 0.2, 0.4], [1.0, -1.5, 0.5, 0.1, -0.2], [0.0, 2.0, 0.2, 0.2, 0.0]])
+    boxes = base.boxes.clone().requires_grad_(True)
+    w = World(segments=base.segments, segment_mask=base.segment_mask, circles=base.circles, circle_mask=base.circle_mask,
+              boxes=boxes, box_mask=base.box_mask, batch_size=base.batch_size)
+    p = planar_world(w)
+    for key in ("segments", "circles", "boxes"):
+        assert torch.equal(getattr(p, key), getattr(w, key)) and getattr(p, key).shape == getattr(w, key).shape
+    assert p.segments[..., 0].is_contiguous() and p.boxes[..., 4].is_contiguous()
+    pose = torch.tensor([[0.5, 0.5, 0.0]] * 3)
+    lidar = LidarParams(n_rays=36, fov=6.283185307179586, max_range=50.0)
+    assert torch.equal(lidar_scan(pose, p, lidar), lidar_scan(pose, w, lidar))
+    (g_planar,) = torch.autograd.grad(lidar_scan(pose, p, lidar).sum(), boxes)
+    (g_plain,) = torch.autograd.grad(lidar_scan(pose, w, lidar).sum(), boxes)
+    assert torch.equal(g_planar, g_plain) and g_plain.abs().sum() > 0

@@ -148,6 +148,38 @@ def cat_worlds(worlds: Sequence[World]) -> World:
     return World(**out, batch_size=[sum(w.batch_size[0] for w in worlds)], device=worlds[0].device)
 
 
+@torch.library.custom_op("torchnav::planar_copy", mutates_args=())
+def _planar_copy(x: Tensor) -> Tensor:
+    """``(B, N, k)`` -> a new ``(k, B, N)`` contiguous tensor (an opaque op, so that
+    ``torch.compile`` materialises it instead of fusing the strided reads into its consumers)."""
+    return x.permute(2, 0, 1).clone(memory_format=torch.contiguous_format)
+
+
+@_planar_copy.register_fake
+def _(x: Tensor) -> Tensor:
+    return x.new_empty((x.shape[2], x.shape[0], x.shape[1]))
+
+
+_planar_copy.register_autograd(lambda ctx, grad: grad.permute(1, 2, 0))
+
+
+def planar_world(world: World) -> World:
+    """``world`` with each obstacle tensor stored component-major: the same ``(B, N, k)``
+    shapes and values, but ``obs[..., i]`` is a contiguous ``(B, N)`` block.
+
+    The simulator step calls this once per step: under ``torch.compile`` the obstacle
+    loops then read contiguous memory and vectorise (atan2 over ``(B, N, 3)``
+    circles read with stride 3 ran 15x slower than over planar ones; one copy of
+    400 obstacles x 4,096 envs costs about 0.6 ms on 2 CPU cores).
+    """
+    out = {}
+    for key, mkey, _ in _KIND_MASKS:
+        t = getattr(world, key)
+        out[key] = _planar_copy(t).permute(1, 2, 0) if t.shape[1] else t
+        out[mkey] = getattr(world, mkey)
+    return World(**out, batch_size=world.batch_size, device=world.device)
+
+
 def check_world(world: World, batch_size: int, dtype: torch.dtype, device: torch.device) -> None:
     """Raise a ValueError naming the field whose shape, dtype or device is off."""
     specs = {

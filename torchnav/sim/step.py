@@ -16,7 +16,7 @@ from .geometry import disc_clearance
 from .kinematics import apply_limits, integrate, wheels_to_unicycle
 from .lidar import lidar_scan
 from .params import SimParams
-from .state import SimState, World, check_world
+from .state import SimState, World, check_world, planar_world
 
 
 def check_action(action: Tensor, state: SimState) -> None:
@@ -56,6 +56,7 @@ def step(
     """
     check_action(action, state)
     check_world(world, state.pose.shape[0], state.pose.dtype, state.pose.device)
+    world = planar_world(world)
     cmd = wheels_to_unicycle(action, params.track_width) if wheel_speeds else action
     vel = apply_limits(cmd, state.vel, params)
     pose = integrate(state.pose, vel, params)
