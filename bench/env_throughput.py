@@ -11,6 +11,10 @@ same env (map ``arena`` by default, 4,096 envs, 2 CPU threads):
 * ``collector``  ``torchrl.collectors.Collector(env, policy=None)`` (a random
                  policy) with ``frames_per_batch = num_envs * k``: what a training
                  loop sees. The first batch is warm-up and not timed.
+* ``gym-vector`` ``torchnav.gym.TorchnavVectorEnv`` over the same env, stepped with
+                 random numpy actions (SAME_STEP autoreset): what a Gymnasium or
+                 Stable-Baselines3 user sees, numpy conversions included. Skipped
+                 when gymnasium is not installed.
 
 Target: the full task keeps at least half of the raw simulator throughput
 (``collector / raw-sim >= 0.5``).
@@ -138,6 +142,35 @@ def bench_collector(env, args: argparse.Namespace) -> dict[str, Any]:
     return rec
 
 
+def bench_gym_vector(env, args: argparse.Namespace) -> dict[str, Any] | None:
+    """``TorchnavVectorEnv.step`` with random numpy actions, autoresets included."""
+    try:
+        from torchnav.gym import TorchnavVectorEnv
+    except ImportError:
+        print("   gym-vector: skipped (gymnasium is not installed: pip install -e '.[gym]')", file=sys.stderr)
+        return None
+    vec = TorchnavVectorEnv(env)
+    vec.reset(seed=args.seed)
+    rng = __import__("numpy").random.default_rng(args.seed)
+    acts = [vec.action_space.sample() if vec._discrete else rng.uniform(-1, 1, (args.num_envs, 2)).astype("float32") for _ in range(8)]
+    box = {"i": 0, "done": 0}
+
+    def call() -> None:
+        _, _, term, trunc, _ = vec.step(acts[box["i"] % len(acts)])
+        box["done"] += int((term | trunc).sum())
+        box["i"] += 1
+
+    for _ in range(args.warmup):
+        call()
+    steps = _steps(args, call, args.device)
+    box["done"], box["i"] = 0, 0
+    t = common.time_calls(call, items_per_call=args.num_envs, steps=steps, repeats=args.repeats, warmup=0, device=args.device)
+    with common.PeakMemory(args.device) as mem:
+        for _ in range(3):
+            call()
+    return _record("gym-vector", args, t, mem, reset_fraction=round(box["done"] / max(1, box["i"] * args.num_envs), 4))
+
+
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--num-envs", type=int, default=4096, help="envs in the batch (default 4096)")
@@ -181,8 +214,10 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     env = make_env(args.map, num_envs=args.num_envs, device=args.device, seed=args.seed, reset={"pool": args.pool})
     env.reset()
     records = []
-    for fn in (bench_raw, bench_env_step, bench_collector):
+    for fn in (bench_raw, bench_env_step, bench_collector, bench_gym_vector):
         rec = fn(env, args)
+        if rec is None:
+            continue
         records.append(rec)
         if args.json:
             common.emit_json(rec)
@@ -193,13 +228,16 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     print(file=log)
     common.print_table(["mode", "env-steps/s", "min", "max", "us/step", "peak mem", "resets/env-step", "steps x reps"], rows, file=log)
     print(f"   peak mem: {records[0]['peak_mem_method']}; collector row: the whole collection, output buffers included", file=log)
-    raw, st, col = (r["env_steps_per_s"] for r in records)
+    raw, st, col = (r["env_steps_per_s"] for r in records[:3])
     ratio = {"bench": "env_ratio", "device": args.device, "num_envs": args.num_envs, "map": args.map,
              "env_step_over_raw": round(st / raw, 3), "collector_over_raw": round(col / raw, 3), "collector_over_env_step": round(col / st, 3),
              "target_task_over_raw": TARGET_RATIO}
     print(f"\n   ratios (same run): env-step / raw-sim = {ratio['env_step_over_raw']:.2f}, collector / raw-sim = {ratio['collector_over_raw']:.2f}, "
           f"collector / env-step = {ratio['collector_over_env_step']:.2f}", file=log)
     verdict = "meets" if ratio["collector_over_raw"] >= TARGET_RATIO else "misses"
+    if len(records) > 3:
+        ratio["gym_vector_over_env_step"] = round(records[3]["env_steps_per_s"] / st, 3)
+        print(f"   gym-vector / env-step = {ratio['gym_vector_over_env_step']:.2f}", file=log)
     print(f"   target: the full task (collector) keeps >= {TARGET_RATIO:.0%} of raw-sim throughput: {verdict} it ({ratio['collector_over_raw']:.0%})", file=log)
     if args.json:
         common.emit_json(ratio)

@@ -30,9 +30,13 @@ class NavEnv(BatchedEnv):
         self.task = NavTask(cfg, num_envs, device=self.device)
         if compile_step:  # the simulator step through torch.compile (not TorchRL's `compile`, which compiles the whole env step)
             self.task.compile_step()
-        self.curriculum = CurriculumState.initial(cfg.curriculum, device=self.device, worlds=cfg.worlds)
+        self.restart_curriculum()
         self._state: NavState | None = None
         self._make_specs()
+
+    def restart_curriculum(self) -> None:
+        """Put the curriculum back to its initial state (goal radius, world difficulties)."""
+        self.curriculum = CurriculumState.initial(self.cfg.curriculum, device=self.device, worlds=self.cfg.worlds)
 
     # -- specs ----------------------------------------------------------------------
 

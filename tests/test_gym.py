@@ -1,0 +1,84 @@
+"""The Gymnasium interface: spaces, check_env, SAME_STEP autoreset, registration, SB3 on a tiny budget."""
+
+import numpy as np
+import pytest
+
+gymnasium = pytest.importorskip("gymnasium")
+
+from gymnasium.utils.env_checker import check_env  # noqa: E402
+
+import torchnav.gym as tg  # noqa: E402
+
+
+@pytest.mark.parametrize("env_id,kwargs", [("torchnav/Navigation-v0", {}), ("torchnav/LineFollowing-v0", {}),
+                                           ("torchnav/Navigation-v0", {"action": {"mode": "discrete"}})])
+def test_single_env_passes_gymnasium_check_env(env_id, kwargs):
+    env = gymnasium.make(env_id, **kwargs)
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, info = env.reset(seed=3)
+    assert obs.dtype == np.float32 and env.observation_space.contains(obs)
+    obs2, *_ = env.step(env.action_space.sample())
+    assert obs2.shape == obs.shape
+
+
+def test_single_env_reset_is_seeded_and_episodes_end():
+    env = tg.navigation_env(max_steps=20)
+    a, _ = env.reset(seed=7)
+    b, _ = env.reset(seed=7)
+    c, _ = env.reset(seed=8)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    for t in range(20):
+        _, r, terminated, truncated, info = env.step(np.zeros(2, dtype=np.float32))
+        assert isinstance(r, float) and set(info) >= {"success", "collision"}
+        if terminated or truncated:
+            break
+    assert terminated or truncated, "a 20-step episode must end within 20 steps"
+    assert "is_success" in info
+
+
+def test_vector_env_same_step_autoreset():
+    envs = gymnasium.make_vec("torchnav/Navigation-v0", num_envs=8, vectorization_mode="vector_entry_point", max_steps=5)
+    assert envs.metadata["autoreset_mode"] == gymnasium.vector.AutoresetMode.SAME_STEP
+    obs, info = envs.reset(seed=0)
+    assert obs.shape == (8, envs.single_observation_space.shape[0]) and info["success"].shape == (8,)
+    ended = np.zeros(8, bool)
+    for _ in range(5):
+        prev = obs
+        obs, reward, terminated, truncated, info = envs.step(np.zeros((8, 2), np.float32))
+        assert reward.shape == (8,) and reward.dtype == np.float32
+        done = terminated | truncated
+        if done.any():
+            assert np.array_equal(info["_final_obs"], done)
+            # the returned observation of a finished env is its next episode's first one
+            assert not np.allclose(obs[done], info["final_obs"][done]) or not np.allclose(obs[done], prev[done])
+        ended |= done
+    assert ended.all(), "every env's 5-step episode ends by step 5"
+    envs.close()
+
+
+def test_vector_env_refuses_wrong_action_shapes():
+    envs = tg.navigation_vector_env(num_envs=4)
+    envs.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(4, 2\)"):
+        envs.step(np.zeros((4, 3), np.float32))
+    disc = tg.navigation_vector_env(num_envs=4, action={"mode": "discrete"})
+    disc.reset(seed=0)
+    with pytest.raises(ValueError, match="integers in"):
+        disc.step(np.full(4, 99))
+    obs, *_ = disc.step(disc.action_space.sample())
+    assert obs.shape[0] == 4
+
+
+def test_unknown_config_key_is_named():
+    with pytest.raises(Exception, match="curiculum"):
+        gymnasium.make("torchnav/Navigation-v0", curiculum={"mode": "off"})
+
+
+def test_sb3_ppo_trains_on_the_single_env():
+    sb3 = pytest.importorskip("stable_baselines3")
+    env = gymnasium.make("torchnav/Navigation-v0", max_steps=50)
+    model = sb3.PPO("MlpPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu", verbose=0)
+    model.learn(total_timesteps=128)
+    obs, _ = env.reset(seed=1)
+    action, _ = model.predict(obs, deterministic=True)
+    assert env.action_space.contains(action.astype(np.float32))

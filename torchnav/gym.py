@@ -1,0 +1,284 @@
+"""Gymnasium interface: the batched tasks as a Gymnasium vector env and as a single env.
+
+``gymnasium`` is an optional dependency (``pip install "torchnav[gym]"``). Importing
+this module registers two ids::
+
+    torchnav/Navigation-v0   torchnav/LineFollowing-v0
+
+    env = gymnasium.make("torchnav/Navigation-v0", map="warehouse")            # one robot
+    envs = gymnasium.make_vec("torchnav/Navigation-v0", num_envs=1024,
+                              vectorization_mode="vector_entry_point")           # the batched sim
+
+Keyword arguments are those of :func:`torchnav.envs.make_env` (``map`` and nested
+``NavConfig`` sections such as ``curriculum={"mode": "fixed"}``) or of
+:func:`torchnav.envs.make_line_env` (``track`` and ``LineConfig`` sections).
+
+Both classes wrap the TorchRL env (:class:`~torchnav.envs.NavEnv` /
+:class:`~torchnav.envs.LineEnv`), so curriculum, rewards and resets are the same as
+in the recipes. Observations are ``float32`` numpy arrays; a continuous action is two
+values in [-1, 1], a discrete one (``action={"mode": "discrete"}``) an integer index.
+
+Autoreset (vector env): ``SAME_STEP``. When an env's episode ends in ``step``, the
+observation returned for it is already the first observation of its next episode;
+the last observation of the finished episode is in ``info["final_obs"]`` and its
+info in ``info["final_info"]`` (both masked by ``info["_final_obs"]`` /
+``info["_final_info"]``). Every step's ``info`` holds the task's outcome flags
+(``success`` and ``collision`` for navigation; ``on_line``, ``left_line``,
+``stalled``, ``collision``, ``lap_completed`` for line following) as bool arrays.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+try:
+    import gymnasium
+    from gymnasium import spaces
+    from gymnasium.vector import AutoresetMode, VectorEnv
+    from gymnasium.vector.utils import batch_space
+except ImportError as e:  # pragma: no cover - exercised only without the extra
+    raise ImportError('torchnav.gym needs gymnasium: pip install "torchnav[gym]"') from e
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from .envs import LineEnv, NavEnv, make_env, make_line_env
+from .envs.line_env import FLAG_KEYS as LINE_FLAGS
+
+_NAV_FLAGS = ("success", "collision")
+
+
+def _flags(env: NavEnv | LineEnv) -> tuple[str, ...]:
+    return LINE_FLAGS if isinstance(env, LineEnv) else _NAV_FLAGS
+
+
+def _spaces(env: NavEnv | LineEnv) -> tuple[spaces.Box, spaces.Space]:
+    obs = env.observation_spec["observation"]
+    n = obs.shape[-1]
+    if hasattr(obs.space, "low"):
+        lo, hi = float(obs.space.low.min()), float(obs.space.high.max())
+    else:
+        lo, hi = -np.inf, np.inf
+    obs_space = spaces.Box(lo, hi, shape=(n,), dtype=np.float32)
+    if env.cfg.action.mode == "discrete":
+        act_space: spaces.Space = spaces.Discrete(len(env.cfg.action.discrete_set))
+    else:
+        act_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+    return obs_space, act_space
+
+
+def _make(kind: str, num_envs: int, seed: int | None, device: str, kwargs: dict[str, Any]) -> NavEnv | LineEnv:
+    if kind == "navigation":
+        return make_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
+    return make_line_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
+
+
+class TorchnavVectorEnv(VectorEnv):
+    """A Gymnasium 1.x vector env over one batched TorchRL env (autoreset ``SAME_STEP``)."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, env: NavEnv | LineEnv):
+        self.env = env
+        self.num_envs = env.num_envs
+        self.single_observation_space, self.single_action_space = _spaces(env)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._discrete = isinstance(self.single_action_space, spaces.Discrete)
+        self._td: TensorDict | None = None
+
+    def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start a new episode in every env. With ``seed`` (an int; a list uses its first entry:
+        the batch shares one generator) the env starts over as if new: its generator is
+        re-seeded and the navigation curriculum goes back to its initial state. Without
+        one, both carry on."""
+        if isinstance(seed, (list, tuple)):
+            seed = seed[0] if seed else None
+        super().reset(seed=seed)
+        if seed is not None:
+            self.env.set_seed(int(seed))
+            self.action_space.seed(int(seed))
+            if isinstance(self.env, NavEnv):
+                self.env.restart_curriculum()
+        self._td = self.env.reset()
+        return self._obs(self._td), self._info(self._td)
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if self._td is None:
+            raise RuntimeError("call reset() before step()")
+        td = self._td.clone(False)
+        td.set("action", self._action_tensor(actions))
+        nxt = self.env.step(td)["next"]
+        obs, info = self._obs(nxt), self._info(nxt)
+        reward = nxt["reward"].reshape(-1).cpu().numpy()
+        terminated = nxt["terminated"].reshape(-1).cpu().numpy()
+        truncated = nxt["truncated"].reshape(-1).cpu().numpy()
+        done = terminated | truncated
+        if done.any():
+            mask = torch.as_tensor(done, device=self.env.device).reshape(self.num_envs, 1)
+            fresh = self.env.reset(TensorDict({"_reset": mask}, batch_size=self.env.batch_size, device=self.env.device))
+            final_info = {k: v.copy() for k, v in info.items()}
+            final_obs = obs.copy()
+            obs[done] = self._obs(fresh)[done]
+            for k, v in self._info(fresh).items():  # the finished envs' flags are their new episode's
+                info[k][done] = v[done]
+            info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
+            nxt = fresh
+        self._td = nxt
+        return obs, reward, terminated, truncated, info
+
+    def close(self, **kwargs: Any) -> None:
+        self.env.close()
+
+    def _action_tensor(self, actions: Any) -> torch.Tensor:
+        a = torch.as_tensor(np.asarray(actions), device=self.env.device)
+        if self._discrete:
+            if a.shape != (self.num_envs,):
+                raise ValueError(f"actions must have shape ({self.num_envs},) (one index per env), got {tuple(a.shape)}")
+            n = self.single_action_space.n
+            if a.dtype.is_floating_point or (a < 0).any() or (a >= n).any():
+                raise ValueError(f"discrete actions must be integers in [0, {n}), got {actions!r}")
+            return torch.nn.functional.one_hot(a.long(), n).to(self.env.action_spec.dtype)
+        if a.shape != (self.num_envs, 2):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 2) (two values in [-1, 1] per env), got {tuple(a.shape)}")
+        return a.to(torch.float32)
+
+    @staticmethod
+    def _obs(td: TensorDict) -> np.ndarray:
+        return td["observation"].to(torch.float32).cpu().numpy()
+
+    def _info(self, td: TensorDict) -> dict[str, Any]:
+        return {k: td[k].reshape(-1).cpu().numpy() for k in _flags(self.env)}
+
+
+class TorchnavEnv(gymnasium.Env):
+    """One robot as a ``gymnasium.Env`` (a batch of one underneath; no autoreset)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, env: NavEnv | LineEnv):
+        if env.num_envs != 1:
+            raise ValueError(f"TorchnavEnv wraps a batch of one env, got num_envs={env.num_envs}; use TorchnavVectorEnv for batches")
+        self._vec = TorchnavVectorEnv(env)
+        self.observation_space = self._vec.single_observation_space
+        self.action_space = self._vec.single_action_space
+
+    @property
+    def env(self) -> NavEnv | LineEnv:
+        return self._vec.env
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self.action_space.seed(int(seed))
+        obs, info = self._vec.reset(seed=seed)
+        return obs[0], {k: bool(v[0]) for k, v in info.items()}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        td = self._vec._td
+        if td is None:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(action)
+        td = td.clone(False)
+        td.set("action", self._vec._action_tensor(a[None] if self._vec._discrete else a.reshape(1, -1)))
+        nxt = self.env.step(td)["next"]
+        self._vec._td = nxt
+        terminated, truncated = bool(nxt["terminated"].item()), bool(nxt["truncated"].item())
+        info: dict[str, Any] = {k: bool(v[0]) for k, v in self._vec._info(nxt).items()}
+        if terminated or truncated:
+            info["is_success"] = info.get("success", info.get("lap_completed", False))
+        return self._vec._obs(nxt)[0], float(nxt["reward"].item()), terminated, truncated, info
+
+    def close(self) -> None:
+        self._vec.close()
+
+
+def navigation_env(num_envs: int = 1, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
+    """``gymnasium.make("torchnav/Navigation-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_env``."""
+    return TorchnavEnv(_make("navigation", 1, seed, device, kwargs))
+
+
+def navigation_vector_env(num_envs: int = 64, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavVectorEnv:
+    """``gymnasium.make_vec("torchnav/Navigation-v0", num_envs, vectorization_mode="vector_entry_point")``."""
+    return TorchnavVectorEnv(_make("navigation", num_envs, seed, device, kwargs))
+
+
+def line_env(num_envs: int = 1, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
+    """``gymnasium.make("torchnav/LineFollowing-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_line_env``."""
+    return TorchnavEnv(_make("line", 1, seed, device, kwargs))
+
+
+def line_vector_env(num_envs: int = 64, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavVectorEnv:
+    """``gymnasium.make_vec("torchnav/LineFollowing-v0", num_envs, vectorization_mode="vector_entry_point")``."""
+    return TorchnavVectorEnv(_make("line", num_envs, seed, device, kwargs))
+
+
+def register_envs() -> None:
+    """Register the torchnav ids with Gymnasium (done on import; safe to call again)."""
+    for name, single, vector in (("Navigation-v0", "navigation_env", "navigation_vector_env"), ("LineFollowing-v0", "line_env", "line_vector_env")):
+        env_id = f"torchnav/{name}"
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=f"torchnav.gym:{single}", vector_entry_point=f"torchnav.gym:{vector}")
+
+
+register_envs()
+
+
+def sb3_vec_env(vec: TorchnavVectorEnv):
+    """The batched env as a Stable-Baselines3 ``VecEnv`` (needs ``pip install "torchnav[sb3]"``).
+
+    SB3 does not take Gymnasium vector envs; this adapter gives SB3's algorithms the
+    whole batch in one call per step instead of ``num_envs`` single envs. Finished
+    episodes carry ``terminal_observation``, ``TimeLimit.truncated`` and ``is_success``
+    in their info dict, as SB3 expects. Wrap it in ``VecMonitor`` for episode returns.
+    """
+    try:
+        from stable_baselines3.common.vec_env import VecEnv
+    except ImportError as e:
+        raise ImportError('torchnav.gym.sb3_vec_env needs stable-baselines3: pip install "torchnav[sb3]"') from e
+
+    class TorchnavSB3VecEnv(VecEnv):
+        render_mode = None
+
+        def __init__(self) -> None:
+            super().__init__(vec.num_envs, vec.single_observation_space, vec.single_action_space)
+            self.vec = vec
+            self._actions: np.ndarray | None = None
+
+        def reset(self) -> np.ndarray:
+            seed = next((s for s in self._seeds if s is not None), None)
+            obs, _ = self.vec.reset(seed=seed)
+            self._reset_seeds()
+            return obs
+
+        def step_async(self, actions: np.ndarray) -> None:
+            self._actions = actions
+
+        def step_wait(self):
+            obs, reward, terminated, truncated, info = self.vec.step(self._actions)
+            done = terminated | truncated
+            infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+            if done.any():
+                final, success = info["final_obs"], info["final_info"].get("success", info["final_info"].get("lap_completed"))
+                for i in np.flatnonzero(done):
+                    infos[i] = {"terminal_observation": final[i], "TimeLimit.truncated": bool(truncated[i] and not terminated[i]),
+                                "is_success": bool(success[i])}
+            return obs, reward, done, infos
+
+        def close(self) -> None:
+            self.vec.close()
+
+        def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+            return [getattr(self.vec, attr_name)] * len(self._get_indices(indices))
+
+        def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+            setattr(self.vec, attr_name, value)
+
+        def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
+            raise NotImplementedError("the envs of a torchnav batch are one object; call methods on .vec")
+
+        def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+            return [False] * len(self._get_indices(indices))
+
+    return TorchnavSB3VecEnv()
