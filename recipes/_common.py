@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import importlib.util
 import json
 import os
 import random
@@ -110,14 +111,34 @@ def save_config(cfg: DictConfig, run: Path) -> None:
     (run / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
 
 
+# logger.backend -> the package it needs beyond the core install (and the extra that brings it)
+LOGGER_BACKENDS = {"csv": None, "tensorboard": "tensorboard", "wandb": "wandb"}
+
+
+def check_logger(cfg: DictConfig) -> None:
+    """Refuse an unknown ``logger.backend``, or one whose package is not installed, before any run starts."""
+    backend = cfg.logger.backend
+    if backend not in LOGGER_BACKENDS:
+        raise ConfigError(f"logger.backend must be one of {sorted(LOGGER_BACKENDS)}, got {backend!r}")
+    package = LOGGER_BACKENDS[backend]
+    if package and importlib.util.find_spec(package) is None:
+        raise ConfigError(f"logger.backend={backend} needs the {package} package: pip install -e '.[{backend}]'")
+
+
 def make_logger(cfg: DictConfig, run: Path):
-    """TorchRL logger writing into the run directory (CSV by default)."""
+    """TorchRL logger writing into ``<run>/logs`` (CSV by default; TensorBoard; Weights & Biases
+    offline unless the environment sets ``WANDB_MODE=online``, with the run's directory name as its name)."""
+    check_logger(cfg)
+    if cfg.logger.backend == "wandb":
+        from torchrl.record.loggers.wandb import WandbLogger
+
+        (run / "logs").mkdir(parents=True, exist_ok=True)
+        online = os.environ.get("WANDB_MODE", "offline") == "online"
+        return WandbLogger(exp_name=run.name, save_dir=str(run / "logs"), project=os.environ.get("WANDB_PROJECT", "torchnav"),
+                           offline=not online, log_env_packages=False)
     from torchrl.record.loggers import get_logger
 
-    backend = cfg.logger.backend
-    if backend not in ("csv", "tensorboard"):
-        raise ConfigError(f"logger.backend must be 'csv' or 'tensorboard', got {backend!r}")
-    return get_logger(backend, logger_name=str(run), experiment_name="logs")
+    return get_logger(cfg.logger.backend, logger_name=str(run), experiment_name="logs")
 
 
 def seed_everything(seed: int) -> None:
@@ -272,7 +293,7 @@ def config_dict(cfg: DictConfig) -> dict[str, Any]:
 
 
 __all__ = [
-    "load_config", "nav_config", "make_run_dir", "save_config", "make_logger", "seed_everything", "rng_states",
+    "load_config", "nav_config", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
     "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume_dir", "StopFlag", "ThreadGovernor", "write_json",
     "config_dict", "to_dict",
 ]

@@ -154,6 +154,7 @@ class Trainer:
     def __init__(self, name: str, argv: list[str], ckpt_format: str, adapter: type = NavAdapter) -> None:
         self.name, self.ckpt_format = name, ckpt_format
         self.cfg = cfg = C.load_config(name, argv)
+        C.check_logger(cfg)
         resume_dir = C.find_resume_dir(cfg)
         self.ckpt: dict[str, Any] | None = None
         if resume_dir is not None:

@@ -103,6 +103,30 @@ def test_td3_unknown_key_and_missing_checkpoint(tmp_path):
     assert not (tmp_path / "y").exists() and not (tmp_path / "z").exists()  # refused before the run directory
 
 
+def test_logger_backend_is_checked_before_the_run(tmp_path, monkeypatch):
+    import _common
+
+    from torchnav.config import ConfigError
+
+    with pytest.raises(ConfigError, match="logger.backend must be one of"):
+        _td3(TINY + ["logger.backend=mlflowx", f"logger.run_dir={tmp_path / 'a'}"])
+    monkeypatch.setitem(_common.LOGGER_BACKENDS, "tensorboard", "no_such_package_xyz")
+    with pytest.raises(ConfigError, match=r"needs the no_such_package_xyz package: pip install -e '\.\[tensorboard\]'"):
+        _td3(TINY + ["logger.backend=tensorboard", f"logger.run_dir={tmp_path / 'b'}"])
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("backend", ["tensorboard", "wandb"])
+def test_logger_backend_writes_into_the_run(tmp_path, backend, monkeypatch):
+    pytest.importorskip(backend, reason=f"the [{backend}] extra is not installed")
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    run = tmp_path / "run"
+    _td3(TINY + ["train.total_frames=256", "eval.record_episodes=0", f"logger.backend={backend}", f"logger.run_dir={run}"])
+    files = [p for p in (run / "logs").rglob("*") if p.is_file()]
+    assert files and sum(p.stat().st_size for p in files) > 0, f"the {backend} logger wrote nothing"
+
+
 def test_td3_sigterm_writes_checkpoint(tmp_path):
     run = tmp_path / "run"
     args = [sys.executable, str(RECIPES / "td3_lidar.py"), *TINY, "train.total_frames=10000000", f"logger.run_dir={run}"]
