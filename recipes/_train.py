@@ -50,8 +50,8 @@ class NavAdapter:
     def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
         return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed, compile_step=self.compile_step)
 
-    def evaluate(self, policy, episodes: int, seed: int, device) -> dict[str, Any]:
-        s = summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device))
+    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
+        s = summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress))
         s["score"] = s["success"]["rate"]  # the rate compared with eval.target_success
         return s
 
@@ -109,10 +109,11 @@ class LineAdapter:
 
         return LineEnv(self.config, num_envs=num_envs, device=device, seed=seed)
 
-    def evaluate(self, policy, episodes: int, seed: int, device) -> dict[str, Any]:
+    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
         from torchnav.line_evaluation import run_line_episodes, summarize_laps
 
-        s = summarize_laps(run_line_episodes(policy, self.config, episodes, seed=seed, laps=self.laps, device=device), dt=self.config.robot.dt)
+        s = summarize_laps(run_line_episodes(policy, self.config, episodes, seed=seed, laps=self.laps, device=device, progress=progress),
+                           dt=self.config.robot.dt)
         s["score"] = s["lap_complete"]["rate"]
         return s
 

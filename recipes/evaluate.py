@@ -4,7 +4,7 @@ on lap completion from random starts (``--track``, ``--laps``).
 
     python recipes/evaluate.py                                  # the shipped checkpoint on arena
     python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
-    python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to <CKPT dir>/eval_episodes.mcap
+    python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to an MCAP file (--record-path)
 
 Accepts the ``actor.pt`` any recipe writes (format ``torchnav-actor-v2``, see
 ``torchnav/policy.py``) and the recipes' training checkpoints (``checkpoint.pt``).
@@ -41,6 +41,14 @@ def load_actor(path: Path):
     return sp.policy, sp.config()
 
 
+def default_record_path(ckpt: Path, where: str) -> Path:
+    """``eval_episodes.mcap`` beside a run's checkpoint (a directory with ``config.yaml``); for any
+    other checkpoint (the shipped ones in ``checkpoints/``) under ``runs/eval/``, never in a tracked folder."""
+    if (ckpt.parent / "config.yaml").is_file():
+        return ckpt.parent / "eval_episodes.mcap"
+    return Path("runs") / "eval" / f"{ckpt.stem}_{Path(str(where)).stem}.mcap"
+
+
 def main(argv: list[str]) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", nargs="?", default=str(DEFAULT_CHECKPOINT), help="actor.pt or checkpoint.pt (default: the shipped arena policy)")
@@ -53,7 +61,7 @@ def main(argv: list[str]) -> dict:
     p.add_argument("--threads", type=C.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
     p.add_argument("--json", default=None, help="write the results as JSON to this path")
     p.add_argument("--record", type=int, default=0, help="write this many episodes to an MCAP file")
-    p.add_argument("--record-path", default=None, help="MCAP path (default: eval_episodes.mcap beside the checkpoint)")
+    p.add_argument("--record-path", default=None, help="MCAP path (default: eval_episodes.mcap beside a run's checkpoint, else runs/eval/<checkpoint>_<map>.mcap)")
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="task overrides, e.g. max_steps=300 reward.preset=shaped")
     a = p.parse_args(argv)
     if a.episodes < 1:
@@ -82,7 +90,7 @@ def main(argv: list[str]) -> dict:
                            laps=a.laps)
         where = task.config.track
         title = f"{ckpt.name} on {where}, {a.laps} lap(s) from random starts, seed {a.seed}"
-    res = task.evaluate(actor, a.episodes, a.seed, a.device)
+    res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating")
     print(task.format(res, title=title))
     out = {"checkpoint": str(ckpt), "task": sp.task, "map": where, "seed": a.seed, "episodes": a.episodes, **res}
     if a.json:
@@ -90,7 +98,7 @@ def main(argv: list[str]) -> dict:
         Path(a.json).write_text(json.dumps(out, indent=2))
         print(f"wrote {a.json}")
     if a.record:
-        path = Path(a.record_path) if a.record_path else ckpt.parent / "eval_episodes.mcap"
+        path = Path(a.record_path) if a.record_path else default_record_path(ckpt, where)
         rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where})
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
     return out

@@ -88,6 +88,14 @@ def test_c_compiles_and_matches_pytorch(tmp_path, kind):
     assert err is not None and err["ok"], err
     if kind == "argmax":
         assert err["index_mismatches"] == 0
+    if kind == "relu":  # a short observation is refused with a message naming both counts
+        import subprocess
+
+        exe = tmp_path / "policy_test"
+        subprocess.run([find_compiler(), "-std=c99", "-O2", str(tmp_path / "c" / "nav_policy.c"), str(tmp_path / "c" / "nav_policy_test.c"),
+                        "-o", str(exe), "-lm"], check=True)
+        p = subprocess.run([str(exe)], input="0.5 " * 24, capture_output=True, text=True)
+        assert p.returncode == 1 and "has 24 values, expected NAV_POLICY_OBS_SIZE = 30" in p.stderr
 
 
 @pytest.mark.parametrize("x", [0.0, -0.0, 1.0, -2.5, 1 / 3, 1e-45, 1.17549435e-38, 3.4028235e38, -7e-12, 123456789.0])

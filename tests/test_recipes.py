@@ -116,6 +116,16 @@ def test_logger_backend_is_checked_before_the_run(tmp_path, monkeypatch):
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 
 
+def test_csv_rows_are_on_disk_as_logged(tmp_path):
+    import _common
+    from omegaconf import OmegaConf
+
+    log = _common.make_logger(OmegaConf.create({"logger": {"backend": "csv"}}), tmp_path)
+    log.log_scalar("train/success_rate", 0.25, step=1024)
+    rows = [p.read_text() for p in (tmp_path / "logs").rglob("*.csv")]
+    assert rows and "0.25" in rows[0], "the CSV row is not on disk right after log_scalar"
+
+
 @pytest.mark.parametrize("backend", ["tensorboard", "wandb"])
 def test_logger_backend_writes_into_the_run(tmp_path, backend, monkeypatch):
     pytest.importorskip(backend, reason=f"the [{backend}] extra is not installed")
@@ -169,6 +179,17 @@ def test_evaluate_shipped_checkpoint():
         pytest.fail(f"the shipped checkpoint {evaluate.DEFAULT_CHECKPOINT} is missing")
     out = evaluate.main(["--episodes", "20", "--threads", "1"])
     assert out["episodes"] == 20 and out["map"] == "arena"
+
+
+def test_evaluate_records_outside_tracked_folders(tmp_path, monkeypatch, capsys):
+    import evaluate
+
+    before = sorted(p.name for p in evaluate.DEFAULT_CHECKPOINT.parent.iterdir())
+    monkeypatch.chdir(tmp_path)
+    evaluate.main(["--episodes", "4", "--threads", "1", "--record", "1"])
+    assert (tmp_path / "runs" / "eval" / "td3_arena_actor_arena.mcap").is_file()
+    assert sorted(p.name for p in evaluate.DEFAULT_CHECKPOINT.parent.iterdir()) == before, "evaluate wrote into checkpoints/"
+    assert "evaluating" in capsys.readouterr().err, "no progress bar on stderr"
 
 
 @pytest.mark.slow

@@ -13,6 +13,7 @@ from typing import Any, Callable, Mapping
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm.auto import tqdm
 
 from .config import merge, to_dict
 from .envs import NavEnv
@@ -75,7 +76,75 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
     return NavConfig.from_dict(merge(d, over))
 
 
+Outcome = Callable[[TensorDictBase], "tuple[torch.Tensor, dict[str, torch.Tensor]]"]
+
+
 @torch.no_grad()
+def run_batched_episodes(
+    policy: Callable[[TensorDictBase], TensorDictBase],
+    make_env: Callable[[int, int], Any],
+    outcome: Outcome,
+    n_episodes: int,
+    seed: int = 0,
+    max_batch: int = 4096,
+    progress: str | None = None,
+) -> dict[str, torch.Tensor]:
+    """The evaluation loop of every task: ``n_episodes`` episodes, one per env, in batches of at
+    most ``max_batch`` envs made by ``make_env(num_envs, seed)`` (seeds ``seed + 7919 k``).
+
+    The deterministic ``policy`` drives each batch until every env's episode has ended;
+    ``outcome(next_td)`` returns ``(ended (B,) bool, values {name: (B,)})`` and each env
+    keeps the values of its first step where ``ended`` is True. A policy with a ``bind``
+    method is bound to each env first. ``progress``: a label for a progress bar of
+    finished episodes on stderr (``None``: silent).
+    """
+    parts: dict[str, list[torch.Tensor]] = {}
+    done, chunk = 0, 0
+    with tqdm(total=n_episodes, unit="ep", desc=progress, disable=progress is None, leave=False, dynamic_ncols=True) as bar:
+        while done < n_episodes:
+            n = min(max_batch, n_episodes - done)
+            env = make_env(n, seed + 7919 * chunk)
+            bind_policy(policy, env)
+            for k, v in _until_ended(policy, env, outcome, bar).items():
+                parts.setdefault(k, []).append(v.cpu())
+            done += n
+            chunk += 1
+    return {k: torch.cat(v) for k, v in parts.items()}
+
+
+def _until_ended(policy, env, outcome: Outcome, bar) -> dict[str, torch.Tensor]:
+    finished = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
+    out: dict[str, torch.Tensor] = {}
+    td = env.reset()
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(env.cfg.max_steps):
+            td = env.step(policy(td))
+            nxt = td["next"]
+            ended, values = outcome(nxt)
+            new = ended & ~finished
+            if new.any():
+                for k, v in values.items():
+                    old = out.get(k, torch.zeros_like(v) if v.dtype == torch.bool else torch.full_like(v, float("nan")))
+                    out[k] = torch.where(new, v, old)
+                finished |= new
+                bar.update(int(new.sum()))
+                if finished.all():
+                    break
+            td = nxt.exclude("reward", "done", "terminated", "truncated")
+    return out
+
+
+def nav_outcome(nxt: TensorDictBase) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """A navigation episode ends at its first ``done``: success, collision or timeout, and its statistics."""
+    ep = nxt["episode"]
+    flat = lambda x: x.reshape(-1)  # noqa: E731
+    return flat(nxt["done"]), {
+        "success": flat(nxt["success"]), "collision": flat(nxt["collision"]), "timeout": flat(nxt["truncated"]),
+        "length": flat(ep["length"]).float(), "return": flat(ep["return"]).float(),
+        "path_length": flat(ep["path_length"]).float(), "straight_line": flat(ep["straight_line"]).float(),
+    }
+
+
 def run_episodes(
     policy: Callable[[TensorDictBase], TensorDictBase],
     cfg: NavConfig,
@@ -83,62 +152,23 @@ def run_episodes(
     seed: int = 0,
     device: torch.device | str = "cpu",
     max_batch: int = 4096,
+    progress: str | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Run ``n_episodes`` episodes (one per env, in batches of at most ``max_batch`` envs).
+    """Run ``n_episodes`` navigation episodes (one per env, in batches of at most ``max_batch`` envs).
 
     A policy with a ``bind`` method is bound to each env created here (``policy.bind(env)``).
     Returns per-episode tensors: ``success``, ``collision``, ``timeout`` (bool),
     ``length`` (steps), ``return``, ``path_length`` and ``straight_line`` (m).
     """
-    keys = ("success", "collision", "timeout", "length", "return", "path_length", "straight_line")
-    parts: dict[str, list[torch.Tensor]] = {k: [] for k in keys}
-    done_so_far = 0
-    chunk_id = 0
-    while done_so_far < n_episodes:
-        n = min(max_batch, n_episodes - done_so_far)
-        env = NavEnv(cfg, num_envs=n, device=device, seed=seed + 7919 * chunk_id)
-        bind_policy(policy, env)
-        res = _one_episode_each(policy, env)
-        for k in keys:
-            parts[k].append(res[k].cpu())
-        done_so_far += n
-        chunk_id += 1
-    return {k: torch.cat(v) for k, v in parts.items()}
+    return run_batched_episodes(policy, lambda n, s: NavEnv(cfg, num_envs=n, device=device, seed=s), nav_outcome,
+                                n_episodes, seed, max_batch, progress)
 
 
-def bind_policy(policy: Any, env: NavEnv) -> None:
+def bind_policy(policy: Any, env: Any) -> None:
     """Call ``policy.bind(env)`` if the policy has one (classical planners read the env's worlds)."""
     bind = getattr(policy, "bind", None)
     if callable(bind):
         bind(env)
-
-
-def _one_episode_each(policy, env: NavEnv) -> dict[str, torch.Tensor]:
-    n = env.num_envs
-    finished = torch.zeros(n, dtype=torch.bool, device=env.device)
-    out = {k: torch.zeros(n, dtype=torch.bool if k in ("success", "collision", "timeout") else torch.float32, device=env.device)
-           for k in ("success", "collision", "timeout", "length", "return", "path_length", "straight_line")}
-    td = env.reset()
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(env.cfg.max_steps):
-            td = env.step(policy(td))
-            nxt = td["next"]
-            new = nxt["done"].reshape(-1) & ~finished
-            if new.any():
-                ep = nxt["episode"]
-                vals = {
-                    "success": nxt["success"].reshape(-1), "collision": nxt["collision"].reshape(-1),
-                    "timeout": nxt["truncated"].reshape(-1), "length": ep["length"].reshape(-1),
-                    "return": ep["return"].reshape(-1), "path_length": ep["path_length"].reshape(-1),
-                    "straight_line": ep["straight_line"].reshape(-1),
-                }
-                for k, v in vals.items():
-                    out[k] = torch.where(new, v.to(out[k].dtype), out[k])
-                finished |= new
-                if finished.all():
-                    break
-            td = nxt.exclude("reward", "done", "terminated", "truncated")
-    return out
 
 
 def summarize(res: dict[str, torch.Tensor]) -> dict[str, Any]:

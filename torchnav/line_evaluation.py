@@ -14,21 +14,19 @@ ended without it (``left_line``, ``stalled``, ``collision`` or ``timeout`` at
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, Callable
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from .envs.line_env import LineEnv
-from .evaluation import bind_policy, mean_interval, wilson_interval
+from .evaluation import mean_interval, run_batched_episodes, wilson_interval
 from .tasks.line_config import LineConfig
 
 OUTCOMES = ("lap_complete", "left_line", "stalled", "collision", "timeout")
-_FLOATS = ("lap_time", "length", "lap_fraction", "time_off_line", "return")
 
 
-@torch.no_grad()
 def run_line_episodes(
     policy: Callable[[TensorDictBase], TensorDictBase],
     cfg: LineConfig,
@@ -37,6 +35,7 @@ def run_line_episodes(
     laps: int = 1,
     device: torch.device | str = "cpu",
     max_batch: int = 4096,
+    progress: str | None = None,
 ) -> dict[str, torch.Tensor]:
     """Run ``n_episodes`` episodes (one per env, in batches of at most ``max_batch``) with the
     deterministic ``policy`` until each completes ``laps`` laps or ends.
@@ -48,54 +47,28 @@ def run_line_episodes(
     """
     if laps < 1:
         raise ValueError(f"laps must be >= 1, got {laps}")
-    parts: dict[str, list[torch.Tensor]] = {k: [] for k in OUTCOMES + _FLOATS}
-    done, chunk = 0, 0
-    while done < n_episodes:
-        n = min(max_batch, n_episodes - done)
-        env = LineEnv(cfg, num_envs=n, device=device, seed=seed + 7919 * chunk)
-        bind_policy(policy, env)
-        for k, v in _until_lap(policy, env, laps).items():
-            parts[k].append(v.cpu())
-        done += n
-        chunk += 1
-    return {k: torch.cat(v) for k, v in parts.items()}
+    return run_batched_episodes(policy, lambda n, s: LineEnv(cfg, num_envs=n, device=device, seed=s), partial(lap_outcome, laps=laps),
+                                n_episodes, seed, max_batch, progress)
 
 
-def _until_lap(policy, env: LineEnv, laps: int) -> dict[str, torch.Tensor]:
-    n, dev = env.num_envs, env.device
-    finished = torch.zeros(n, dtype=torch.bool, device=dev)
-    out = {k: torch.zeros(n, dtype=torch.bool, device=dev) for k in OUTCOMES}
-    out.update({k: torch.full((n,), float("nan"), device=dev) for k in _FLOATS})
-    td = env.reset()
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(env.cfg.max_steps):
-            td = env.step(policy(td))
-            nxt = td["next"]
-            ep = nxt["episode"]
-            flat = lambda x: x.reshape(-1)  # noqa: E731
-            lap = flat(ep["laps"]) >= laps
-            ended = flat(nxt["done"])
-            new = (lap | ended) & ~finished
-            if new.any():
-                outcome = {
-                    "lap_complete": lap,
-                    "left_line": ~lap & flat(nxt["left_line"]),
-                    "stalled": ~lap & ~flat(nxt["left_line"]) & flat(nxt["stalled"]),
-                    "collision": ~lap & ~flat(nxt["left_line"]) & ~flat(nxt["stalled"]) & flat(nxt["collision"]),
-                    "timeout": ~lap & flat(nxt["truncated"]),
-                }
-                for k, v in outcome.items():
-                    out[k] = torch.where(new, v, out[k])
-                lap_time = torch.where(flat(ep["laps"]) >= 1, flat(ep["lap_time"]), torch.full_like(flat(ep["lap_time"]), float("nan")))
-                vals = {"lap_time": lap_time, "length": flat(ep["length"]), "lap_fraction": flat(ep["lap_fraction"]),
-                        "time_off_line": flat(ep["time_off_line"]), "return": flat(ep["return"])}
-                for k, v in vals.items():
-                    out[k] = torch.where(new, v.to(out[k].dtype), out[k])
-                finished |= new
-                if finished.all():
-                    break
-            td = nxt.exclude("reward", "done", "terminated", "truncated")
-    return out
+def lap_outcome(nxt: TensorDictBase, laps: int = 1) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """A line-following episode is judged when it completes ``laps`` laps or ends without them."""
+    ep = nxt["episode"]
+    flat = lambda x: x.reshape(-1)  # noqa: E731
+    lap = flat(ep["laps"]) >= laps
+    left, stalled = flat(nxt["left_line"]), flat(nxt["stalled"])
+    lap_time = flat(ep["lap_time"])
+    values = {
+        "lap_complete": lap,
+        "left_line": ~lap & left,
+        "stalled": ~lap & ~left & stalled,
+        "collision": ~lap & ~left & ~stalled & flat(nxt["collision"]),
+        "timeout": ~lap & flat(nxt["truncated"]),
+        "lap_time": torch.where(flat(ep["laps"]) >= 1, lap_time, torch.full_like(lap_time, float("nan"))),
+        "length": flat(ep["length"]), "lap_fraction": flat(ep["lap_fraction"]),
+        "time_off_line": flat(ep["time_off_line"]), "return": flat(ep["return"]),
+    }
+    return lap | flat(nxt["done"]), values
 
 
 def summarize_laps(res: dict[str, torch.Tensor], dt: float = 0.05) -> dict[str, Any]:

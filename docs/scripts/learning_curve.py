@@ -21,7 +21,7 @@ from torchnav.render import read_scalars  # noqa: E402
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("runs", nargs="+")
-    p.add_argument("--out", default="docs/img/td3_learning_curve.png")
+    p.add_argument("--out", default="runs/learning_curve.png", help="picture to write (default runs/learning_curve.png; the docs picture is docs/img/td3_learning_curve.png)")
     a = p.parse_args()
     fig, (ax_t, ax_f) = plt.subplots(1, 2, figsize=(9, 3.4))
     for run in a.runs:

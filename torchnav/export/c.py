@@ -160,7 +160,9 @@ def render_test(net: Network, name: str) -> str:
         "#include <stdio.h>", f'#include "{name}.h"', "", "int main(void)", "{",
         f"    float obs[{N}_OBS_SIZE], action[{N}_ACT_SIZE];", "    int i;", "    for (;;) {",
         f"        for (i = 0; i < {N}_OBS_SIZE; ++i) {{", "            if (scanf(\"%f\", &obs[i]) != 1) {",
-        "                return i == 0 ? 0 : 1; /* a partial observation is an error */", "            }", "        }",
+        "                if (i == 0) return 0;",
+        f"                fprintf(stderr, \"{name}_test: the last observation has %d values, expected {N}_OBS_SIZE = %d\\n\", i, {N}_OBS_SIZE);",
+        "                return 1; /* a partial observation is an error */", "            }", "        }",
         *out, "        printf(\"\\n\");", "    }", "}", ""])
 
 
