@@ -9,13 +9,15 @@ import argparse
 import datetime as _dt
 import importlib.util
 import json
+import math
 import os
 import random
+import re
 import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 import yaml
@@ -60,6 +62,7 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
     cfg = OmegaConf.create(yaml.safe_load(path.read_text()) or {})
+    defaults = cfg.copy()
     for sec in _FREE_SECTIONS:
         if OmegaConf.select(cfg, sec) is None:
             OmegaConf.update(cfg, sec, {}, force_add=True)
@@ -71,7 +74,93 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
     except (ConfigAttributeError, ConfigKeyError) as e:
         key = getattr(e, "full_key", None) or str(e).splitlines()[0]
         raise ConfigError(f"unknown config key '{key}'{_did_you_mean(cfg, str(key))} (see {path} for every valid key)") from None
+    validate(cfg, defaults)
     return cfg
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_num(v: Any) -> bool:
+    return (_is_int(v) or isinstance(v, float)) and math.isfinite(v)
+
+
+# key -> (test, what is allowed). A key may appear in some recipes only; "train.lr*" matches every learning rate.
+_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {}
+for _keys, _rule in {
+    ("seed",): (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
+    ("env.num_envs", "env.max_steps", "train.total_frames", "train.frames_per_batch", "train.updates_per_batch", "train.batch_size",
+     "train.buffer_size", "train.policy_delay", "train.epochs", "train.minibatch_size", "eval.episodes", "eval.final_episodes",
+     "eval.laps", "checkpoint.interval_frames"): (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    ("train.init_random_frames", "train.expl_anneal_frames", "train.eps_anneal_frames", "train.obs_stats_steps",
+     "eval.interval_frames", "eval.record_episodes"): (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
+    ("train.lr*", "train.max_grad_norm", "train.clip_epsilon", "train.alpha_init", "env.goal_tolerance"):
+        (lambda v: _is_num(v) and v > 0, "a finite number > 0"),
+    ("train.policy_noise", "train.noise_clip", "train.expl_sigma_init", "train.expl_sigma_end", "train.entropy_coeff",
+     "train.critic_coeff"): (lambda v: _is_num(v) and v >= 0, "a finite number >= 0"),
+    ("train.gamma", "train.tau"): (lambda v: _is_num(v) and 0 < v <= 1, "a number in (0, 1]"),
+    ("train.lmbda", "train.eps_init", "train.eps_end", "eval.target_success"): (lambda v: _is_num(v) and 0 <= v <= 1, "a number in [0, 1]"),
+    ("train.init_log_std",): (_is_num, "a finite number"),
+    ("train.hidden",): (lambda v: isinstance(v, list) and len(v) > 0 and all(_is_int(h) and h >= 1 for h in v), "a non-empty list of integers >= 1"),
+    ("train.activation",): (lambda v: v in ("relu", "tanh"), "relu or tanh"),
+    ("env.compile_step", "logger.progress"): (lambda v: isinstance(v, bool), "true or false"),
+    ("device",): (lambda v: isinstance(v, str) and re.fullmatch(r"cpu|cuda(:\d+)?", v) is not None, "cpu, cuda or cuda:N"),
+}.items():
+    for _k in _keys:
+        _RULES[_k] = _rule
+
+
+def _rule(key: str) -> tuple[Callable[[Any], bool], str] | None:
+    return _RULES.get(key) or next((r for k, r in _RULES.items() if k.endswith("*") and key.startswith(k[:-1])), None)
+
+
+def _leaves(node: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(node, dict):
+        out: dict[str, Any] = {}
+        for k, v in node.items():
+            out.update(_leaves(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: node}
+
+
+def validate(cfg: DictConfig, defaults: DictConfig | None = None) -> None:
+    """Check every value of a recipe config before any work: its type (that of the recipe's
+    default file, when ``defaults`` is given), finiteness, range, the relations between keys
+    and that the device exists. Raises a ConfigError naming the key, the value and what is
+    allowed. ``task.*`` keys are NavConfig/LineConfig fields, checked by those classes."""
+    values = _leaves(OmegaConf.to_container(cfg, resolve=True))
+    base = _leaves(OmegaConf.to_container(defaults, resolve=True)) if defaults is not None else {}
+    problems = []
+    for key, v in values.items():
+        if key.startswith("task.") or key in ("threads", "checkpoint.resume", "logger.run_dir"):
+            continue  # the task's own config class, ThreadGovernor and find_resume_dir check these
+        if isinstance(v, float) and not math.isfinite(v):
+            problems.append(f"{key}={v!r}: must be finite")
+            continue
+        rule = _rule(key)
+        if rule is not None:
+            if not rule[0](v):
+                problems.append(f"{key}={v!r}: must be {rule[1]}")
+            continue
+        d = base.get(key)
+        if d is not None and not (type(v) is type(d) or (isinstance(d, float) and _is_int(v))):
+            problems.append(f"{key}={v!r}: must be a {type(d).__name__} like its default {d!r}")
+    fpb, n = values.get("train.frames_per_batch"), values.get("env.num_envs")
+    if _is_int(fpb) and _is_int(n) and n >= 1 and fpb % n:
+        problems.append(f"train.frames_per_batch={fpb} must be a multiple of env.num_envs={n}")
+    for small, big in (("train.minibatch_size", "train.frames_per_batch"), ("train.batch_size", "train.buffer_size"),
+                       ("eval.record_episodes", "eval.final_episodes")):
+        if _is_int(values.get(small)) and _is_int(values.get(big)) and values[small] > values[big]:
+            problems.append(f"{small}={values[small]} must be at most {big}={values[big]}")
+    dev = values.get("device")
+    if isinstance(dev, str) and dev.startswith("cuda") and (rule := _rule("device")) and rule[0](dev):
+        n = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        index = int(dev.split(":")[1]) if ":" in dev else 0
+        if index >= n:
+            problems.append(f"device={dev!r}: this machine has {n} CUDA device(s){'' if n else ' (torch ' + torch.__version__ + ')'}; use device=cpu")
+    if problems:
+        raise ConfigError("invalid config:\n  " + "\n  ".join(problems))
 
 
 def _did_you_mean(cfg: DictConfig, key: str) -> str:

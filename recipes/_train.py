@@ -42,10 +42,13 @@ class NavAdapter:
 
     @classmethod
     def from_recipe(cls, cfg) -> "NavAdapter":
-        compile_step = cfg.env.get("compile_step", False)
-        if not isinstance(compile_step, bool):
-            raise C.ConfigError(f"env.compile_step must be true or false, got {compile_step!r}")
-        return cls(C.nav_config(cfg), compile_step=compile_step)
+        compile_step = cfg.env.get("compile_step", False)  # checked by C.validate
+        config = C.nav_config(cfg)
+        if not config.worlds.families:
+            from torchnav.maps import load_map
+
+            load_map(config.map)  # an unknown or malformed map is named now, before the run directory exists
+        return cls(config, compile_step=compile_step)
 
     def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
         return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed, compile_step=self.compile_step)
@@ -102,7 +105,11 @@ class LineAdapter:
 
         d = merge(OmegaConf.to_container(cfg.task, resolve=True), {k: v for k, v in OmegaConf.to_container(cfg.env).items() if k != "num_envs"})
         d = merge(d, {"reward": OmegaConf.to_container(cfg.reward, resolve=True)})
-        return cls(LineConfig.from_dict(d, where="config"), laps=cfg.eval.laps)
+        config = LineConfig.from_dict(d, where="config")
+        from torchnav.tracks import load_track
+
+        load_track(config.track)  # an unknown or malformed track is named now, before the run directory exists
+        return cls(config, laps=cfg.eval.laps)
 
     def make_env(self, num_envs: int, device, seed: int):
         from torchnav.envs import LineEnv
@@ -361,9 +368,12 @@ def replay_update(trainer: Trainer, buffer, step_fn) -> Callable[[TensorDictBase
 
 
 def main_guard(main: Callable[[list[str]], Any]) -> None:
-    """Run ``main(sys.argv[1:])``, turning configuration and missing-file errors into one line and exit code 2."""
+    """Run ``main(sys.argv[1:])``, turning configuration, map, track and missing-file errors into one line and exit code 2."""
+    from torchnav.maps import MapError
+    from torchnav.tracks import TrackError
+
     try:
         main(sys.argv[1:])
-    except (C.ConfigError, FileNotFoundError) as e:
+    except (C.ConfigError, MapError, TrackError, FileNotFoundError) as e:
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

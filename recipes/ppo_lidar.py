@@ -60,8 +60,6 @@ def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -
     cfg, tc, env, device = t.cfg, t.cfg.train, t.env, t.device
     if t.task.config.action.mode != "continuous":
         raise C.ConfigError("PPO here needs task.action.mode=continuous")
-    if int(tc.frames_per_batch) % int(cfg.env.num_envs):
-        raise C.ConfigError(f"train.frames_per_batch ({tc.frames_per_batch}) must be a multiple of env.num_envs ({cfg.env.num_envs})")
 
     # -- networks: both normalise observations with statistics of a random-action rollout -----
     obs_size, act_size = env.task.obs_size, 2

@@ -96,7 +96,7 @@ def test_td3_unknown_key_and_missing_checkpoint(tmp_path):
         _td3(TINY + ["task.curriculum.grwth=0.01", f"logger.run_dir={tmp_path / 'x'}"])
     with pytest.raises(FileNotFoundError, match="checkpoint not found"):
         _td3(TINY + [f"checkpoint.resume={tmp_path / 'nothing'}"])
-    with pytest.raises(ConfigError, match="env.compile_step must be true or false"):
+    with pytest.raises(ConfigError, match="env.compile_step='maybe': must be true or false"):
         _td3(TINY + ["env.compile_step=maybe", f"logger.run_dir={tmp_path / 'y'}"])
     with pytest.raises(ConfigError, match="threads must be 'auto' or an int >= 1"):
         _td3(TINY + ["threads=0", f"logger.run_dir={tmp_path / 'z'}"])

@@ -1,0 +1,90 @@
+"""Bad inputs get a named error before any work: recipe overrides, maps, tracks, actions, checkpoints.
+
+Each case asserts the error type and that its message names the culprit; recipe cases
+also assert that no run directory was created.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "recipes"))
+
+from torchnav.config import ConfigError  # noqa: E402
+from torchnav.maps import MapError  # noqa: E402
+from torchnav.tracks import TrackError  # noqa: E402
+
+# (recipe, override, what the message must contain)
+BAD_OVERRIDES = [
+    ("td3_lidar", "env.num_envs=0", "env.num_envs=0: must be an integer >= 1"),
+    ("td3_lidar", "env.num_envs=2.5", "env.num_envs=2.5"),
+    ("td3_lidar", "train.lr_actor=nan", "train.lr_actor"),
+    ("td3_lidar", "train.lr_critic=-1e-3", "train.lr_critic=-0.001: must be a finite number > 0"),
+    ("td3_lidar", "train.frames_per_batch=0", "train.frames_per_batch=0"),
+    ("td3_lidar", "train.frames_per_batch=1000", "must be a multiple of env.num_envs=128"),
+    ("td3_lidar", "train.policy_delay=0", "train.policy_delay=0"),
+    ("td3_lidar", "train.total_frames=-1000", "train.total_frames=-1000"),
+    ("td3_lidar", "train.batch_size=2000000", "train.batch_size=2000000 must be at most train.buffer_size"),
+    ("td3_lidar", "train.gamma=1.5", "train.gamma=1.5: must be a number in (0, 1]"),
+    ("td3_lidar", "train.hidden=[]", "train.hidden=[]"),
+    ("td3_lidar", "train.hidden=[64,-1]", "train.hidden"),
+    ("td3_lidar", "eval.episodes=0", "eval.episodes=0"),
+    ("td3_lidar", "eval.record_episodes=5000", "eval.record_episodes=5000 must be at most eval.final_episodes"),
+    ("td3_lidar", "eval.target_success=2", "eval.target_success=2"),
+    ("td3_lidar", "seed=abc", "seed='abc'"),
+    ("td3_lidar", "seed=-1", "seed=-1"),
+    ("td3_lidar", "device=cuda:7", "device='cuda:7'"),
+    ("td3_lidar", "device=tpu", "device='tpu': must be cpu, cuda or cuda:N"),
+    ("td3_lidar", "env.compile_step=maybe", "env.compile_step"),
+    ("td3_lidar", "logger.progress=2", "logger.progress=2: must be true or false"),
+    ("td3_lidar", "checkpoint.interval_frames=0", "checkpoint.interval_frames=0"),
+    ("td3_lidar", "curriculum.growth=fast", "curriculum.growth='fast'"),
+    ("td3_lidar", "env.map=nonexistent", "unknown map 'nonexistent'"),
+    ("td3_lidar", "task.lidar.n_rays=0", "lidar.n_rays"),
+    ("td3_lidar", "threads=0", "threads must be 'auto' or an int >= 1"),
+    ("ppo_lidar", "train.minibatch_size=100000", "train.minibatch_size=100000 must be at most train.frames_per_batch"),
+    ("ppo_lidar", "train.epochs=0", "train.epochs=0"),
+    ("ppo_lidar", "train.lmbda=-0.1", "train.lmbda=-0.1"),
+    ("ppo_lidar", "train.activation=gelu", "train.activation='gelu': must be relu or tanh"),
+    ("sac_lidar", "train.lr_alpha=0", "train.lr_alpha=0"),
+    ("dqn_line", "train.eps_end=1.5", "train.eps_end=1.5"),
+    ("ppo_line", "env.track=nope", "unknown track 'nope'"),
+    ("ppo_line", "eval.laps=0", "eval.laps=0"),
+]
+
+
+@pytest.mark.parametrize("recipe,override,message", BAD_OVERRIDES, ids=[f"{r}:{o}" for r, o, _ in BAD_OVERRIDES])
+def test_bad_override_is_named_before_the_run_directory(tmp_path, recipe, override, message):
+    run = tmp_path / "run"
+    with pytest.raises((ConfigError, MapError, TrackError)) as e:
+        importlib.import_module(recipe).main([override, f"logger.run_dir={run}", "logger.progress=false"] if not override.startswith("logger.progress")
+                                             else [override, f"logger.run_dir={run}"])
+    assert message in str(e.value)
+    assert not run.exists(), f"{override}: the run directory was created before the error"
+
+
+def test_every_error_is_listed_at_once(tmp_path):
+    with pytest.raises(ConfigError) as e:
+        importlib.import_module("td3_lidar").main(["env.num_envs=0", "train.gamma=2", f"logger.run_dir={tmp_path / 'r'}"])
+    assert "env.num_envs=0" in str(e.value) and "train.gamma=2" in str(e.value)
+
+
+def test_nav_env_refuses_wrong_action_shape():
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_env
+
+    env = make_env("arena", num_envs=4)
+    td = env.reset()
+    td["action"] = torch.zeros(4, 3)
+    with pytest.raises(ValueError, match=r"action has shape \(4, 3\), expected \(4, 2\)"):
+        env.step(td)
+    bad = TensorDict({"action": torch.full((4, 2), float("nan"))}, batch_size=[4])
+    with pytest.raises(ValueError, match="NaN or inf in envs"):
+        env.step(bad)
