@@ -24,6 +24,7 @@ import yaml
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigAttributeError, ConfigKeyError
 
+from torchnav.checkpoint import load_checked, save_checked
 from torchnav.config import ConfigError, merge, to_dict
 from torchnav.tasks import NavConfig
 
@@ -246,19 +247,13 @@ def set_rng_states(sd: dict[str, Any]) -> None:
 
 
 def save_checkpoint(path: Path, payload: dict[str, Any]) -> None:
-    """Atomic save: write a temporary file, then rename, so a crash never leaves a torn checkpoint."""
-    tmp = path.with_suffix(".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
+    """Durable save with a content hash (``torchnav.checkpoint``): a crash never leaves a torn checkpoint."""
+    save_checked(path, payload)
 
 
 def load_checkpoint(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {path}")
-    try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # noqa: BLE001 - re-raised with the file named
-        raise RuntimeError(f"cannot load checkpoint {path}: {e}") from e
+    """A recipe checkpoint, refused with a CheckpointError naming the file when damaged or non-finite."""
+    return load_checked(path)
 
 
 def find_resume_dir(cfg: DictConfig) -> Path | None:

@@ -88,3 +88,74 @@ def test_nav_env_refuses_wrong_action_shape():
     bad = TensorDict({"action": torch.full((4, 2), float("nan"))}, batch_size=[4])
     with pytest.raises(ValueError, match="NaN or inf in envs"):
         env.step(bad)
+
+
+# --------------------------------------------------------------------------- checkpoints
+
+
+def _saved_policy(tmp_path):
+    from torchnav.policy import Actor, save_policy
+
+    torch.manual_seed(0)
+    actor = Actor(6, 2, [16, 16], "relu", "tanh")
+    path = tmp_path / "actor.pt"
+    save_policy(path, actor, task="nav", task_config={}, algorithm="td3")
+    return actor, path
+
+
+def test_damaged_checkpoint_never_loads_other_weights(tmp_path):
+    from torchnav.checkpoint import CheckpointError
+    from torchnav.policy import load_policy
+
+    actor, path = _saved_policy(tmp_path)
+    data = path.read_bytes()
+    want = {k: v.clone() for k, v in actor.state_dict().items()}
+    refused = 0
+    for i in range(0, len(data), max(1, len(data) // 97)):
+        bad = bytearray(data)
+        bad[i] ^= 0x5A
+        path.write_bytes(bytes(bad))
+        try:
+            got = load_policy(path).actor.state_dict()
+        except (CheckpointError, ValueError):
+            refused += 1
+            continue
+        assert all(torch.equal(got[k], want[k]) for k in want), f"flipping byte {i} loaded other weights silently"
+    assert refused > 50, "most flipped bytes must be refused"
+
+
+def test_truncated_nan_and_foreign_checkpoints_are_refused(tmp_path):
+    from torchnav.checkpoint import CheckpointError, save_checked
+    from torchnav.policy import load_policy
+
+    actor, path = _saved_policy(tmp_path)
+    path.write_bytes(path.read_bytes()[:500])
+    with pytest.raises(CheckpointError, match="damaged or not a torch file"):
+        load_policy(path)
+    nan = tmp_path / "nan.pt"
+    sd = actor.state_dict()
+    sd["net.0.weight"] = sd["net.0.weight"].clone().fill_(float("nan")) if "net.0.weight" in sd else sd[next(iter(sd))].clone().fill_(float("nan"))
+    save_checked(nan, {"format": "torchnav-actor-v2", "state": sd})
+    with pytest.raises(CheckpointError, match=r"state\..* holds NaN or inf"):
+        load_policy(nan)
+    lst = tmp_path / "list.pt"
+    torch.save([1, 2, 3], lst)
+    with pytest.raises(CheckpointError, match="not a torchnav checkpoint"):
+        load_policy(lst)
+    with pytest.raises(FileNotFoundError, match="checkpoint not found"):
+        load_policy(tmp_path / "missing.pt")
+
+
+def test_recipe_refuses_to_resume_a_damaged_checkpoint(tmp_path):
+    from torchnav.checkpoint import CheckpointError
+
+    td3 = importlib.import_module("td3_lidar")
+    tiny = ["threads=1", "env.num_envs=16", "env.max_steps=60", "eval.interval_frames=0", "eval.final_episodes=4", "eval.record_episodes=0",
+            "checkpoint.interval_frames=128", "logger.progress=false", "train.frames_per_batch=128", "train.init_random_frames=128",
+            "train.updates_per_batch=2", "train.batch_size=32", "train.hidden=[16,16]", "train.buffer_size=1000"]
+    run = tmp_path / "run"
+    td3.main(tiny + ["train.total_frames=128", f"logger.run_dir={run}"])
+    ck = run / "checkpoint.pt"
+    ck.write_bytes(ck.read_bytes()[:-300])
+    with pytest.raises(CheckpointError, match="checkpoint.pt"):
+        td3.main(tiny + ["train.total_frames=256", f"checkpoint.resume={run}"])

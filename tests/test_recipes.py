@@ -301,6 +301,7 @@ def test_shipped_checkpoints_load_and_drive(path):
     sp = load_policy(path)
     cfg = sp.config()
     assert sp.extra.get("source"), f"{path.name}: no provenance ('source') recorded"
+    assert len(torch.load(path, weights_only=True).get("sha256", "")) == 64, f"{path.name}: no content hash"
     if sp.task == "nav":
         from torchnav.evaluation import eval_config, run_episodes
 

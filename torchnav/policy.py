@@ -15,7 +15,6 @@ command of each action). Stochastic policies save their deterministic mean actio
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -23,6 +22,8 @@ from typing import Any, Sequence
 import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
+
+from .checkpoint import HASH_KEY, load_checked, save_checked
 
 FORMAT = "torchnav-actor-v2"
 ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh}
@@ -140,28 +141,19 @@ def policy_payload(actor: Actor, *, task: str, task_config: dict[str, Any], algo
 
 
 def save_policy(path: str | Path, actor: Actor, **kw: Any) -> None:
-    """Write ``actor.pt`` atomically (temporary file, then rename); ``kw`` as in ``policy_payload``."""
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(policy_payload(actor, **kw), tmp)
-    os.replace(tmp, path)
+    """Write ``actor.pt`` with its content hash, durably (``torchnav.checkpoint.save_checked``); ``kw`` as in ``policy_payload``."""
+    save_checked(path, policy_payload(actor, **kw))
 
 
 def load_policy(path: str | Path, map_location: str | torch.device = "cpu") -> SavedPolicy:
     """Load an ``actor.pt`` or a recipe's ``checkpoint.pt`` (which embeds one under ``"policy"``).
 
     Raises ``FileNotFoundError`` for a missing file and ``ValueError`` naming the
-    file for anything that is not a torchnav policy.
+    file for anything that is not a torchnav policy (:class:`~torchnav.checkpoint.CheckpointError`
+    for a damaged file or non-finite weights).
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {path}")
-    try:
-        ck = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as e:  # noqa: BLE001 - re-raised with the file named
-        raise ValueError(f"cannot load {path}: {e}") from e
-    if not isinstance(ck, dict):
-        raise ValueError(f"{path}: not a torchnav policy checkpoint")
+    ck = load_checked(path, map_location)
     if ck.get("format") != FORMAT and isinstance(ck.get("policy"), dict):
         ck = ck["policy"]
     if ck.get("format") != FORMAT:
@@ -172,7 +164,7 @@ def load_policy(path: str | Path, map_location: str | torch.device = "cpu") -> S
     except (KeyError, RuntimeError, ValueError) as e:
         raise ValueError(f"{path}: policy checkpoint is inconsistent: {e}") from e
     actor.eval()
-    known = {"format", "obs_size", "out_size", "hidden", "activation", "output", "state", "action_table", "task", "task_config", "algorithm"}
+    known = {"format", HASH_KEY, "obs_size", "out_size", "hidden", "activation", "output", "state", "action_table", "task", "task_config", "algorithm"}
     return SavedPolicy(actor=actor, policy=to_policy(actor), task=ck["task"], task_config=ck["task_config"],
                        algorithm=ck["algorithm"], action_table=ck.get("action_table"), path=path,
                        extra={k: v for k, v in ck.items() if k not in known})

@@ -1,0 +1,115 @@
+"""Checkpoint files that say when they are damaged: content-hashed, finite, written durably.
+
+Every ``actor.pt`` and recipe ``checkpoint.pt`` goes through :func:`save_checked` and
+:func:`load_checked`:
+
+* the payload carries ``"sha256"``, a hash of its content (every tensor's dtype, shape
+  and bytes, every other value's ``repr``, in key order), recomputed at load: a file
+  whose bytes changed reads as damaged instead of loading other weights silently;
+* a floating-point tensor holding NaN or inf is refused at load, naming its key;
+* writes go to a temporary file that is flushed and ``fsync``-ed, then renamed over
+  the target, so a crash leaves the old file or the new one, never a torn one.
+
+Files written before the hash existed (no ``"sha256"`` key) still load, unchecked.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+HASH_KEY = "sha256"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file that cannot be used: unreadable, damaged, or holding non-finite weights."""
+
+
+def _feed(h: "hashlib._Hash", obj: Any) -> None:
+    if isinstance(obj, torch.Tensor):
+        t = obj.detach().cpu().contiguous()
+        h.update(f"T{t.dtype}{tuple(t.shape)}".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    elif isinstance(obj, dict):
+        h.update(b"{")
+        for k in sorted(obj, key=repr):
+            h.update(repr(k).encode())
+            _feed(h, obj[k])
+        h.update(b"}")
+    elif isinstance(obj, (list, tuple)):
+        h.update(b"[" if isinstance(obj, list) else b"(")
+        for x in obj:
+            _feed(h, x)
+        h.update(b"]")
+    else:
+        h.update(f"{type(obj).__name__}:{obj!r}".encode())
+
+
+def content_hash(payload: dict[str, Any]) -> str:
+    """SHA-256 of a payload's content, the ``"sha256"`` entry excluded."""
+    h = hashlib.sha256()
+    _feed(h, {k: v for k, v in payload.items() if k != HASH_KEY})
+    return h.hexdigest()
+
+
+def _non_finite(obj: Any, path: str = "") -> str | None:
+    if isinstance(obj, torch.Tensor):
+        return path if obj.is_floating_point() and not bool(torch.isfinite(obj).all()) else None
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, (list, tuple)) else ()
+    for k, v in items:
+        bad = _non_finite(v, f"{path}.{k}" if path else str(k))
+        if bad is not None:
+            return bad
+    return None
+
+
+def save_checked(path: str | Path, payload: dict[str, Any]) -> None:
+    """Write ``payload`` with its content hash to ``path``: temporary file, fsync, rename."""
+    path = Path(path)
+    buf = io.BytesIO()
+    torch.save({**payload, HASH_KEY: content_hash(payload)}, buf)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(buf.getbuffer())
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    try:  # make the rename itself durable
+        fd = os.open(path.parent, os.O_RDONLY)
+    except OSError:  # directories cannot be opened on some systems
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def load_checked(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Load a payload written by :func:`save_checked` (or an older, hash-less torchnav file).
+
+    Raises ``FileNotFoundError`` for a missing file and :class:`CheckpointError`, naming
+    the file, for one that cannot be read, is not a dict, does not match its content
+    hash, or holds a NaN or inf in a floating-point tensor.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    try:
+        ck = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:  # noqa: BLE001 - re-raised with the file named
+        raise CheckpointError(f"cannot load {path}: the file is damaged or not a torch file ({type(e).__name__}: {e})") from e
+    if not isinstance(ck, dict):
+        raise CheckpointError(f"{path}: not a torchnav checkpoint (a {type(ck).__name__}, not a dict)")
+    if HASH_KEY in ck and ck[HASH_KEY] != content_hash(ck):
+        raise CheckpointError(f"{path}: content does not match its sha256 (the file was damaged or edited after it was written)")
+    bad = _non_finite({k: v for k, v in ck.items() if k != HASH_KEY})
+    if bad is not None:
+        raise CheckpointError(f"{path}: {bad} holds NaN or inf values (a diverged run?); refusing to load it")
+    return ck
