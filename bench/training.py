@@ -107,11 +107,11 @@ def main(argv: list[str]) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recipe", choices=RECIPES)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--out", default=None, help="parent of the run directories (default runs/bench_<recipe>)")
+    p.add_argument("--out", default=None, help="parent of the run directories (default runs/bench_<recipe>_<time>; an existing run in it is not overwritten)")
     p.add_argument("--json", default=None, help="also write the rows as JSON here")
     p.add_argument("--busy", type=int, default=0, help="run this many CPU-bound processes next to each run (contention)")
     a = p.parse_args(argv)
-    out = Path(a.out or ROOT / "runs" / f"bench_{a.recipe}")
+    out = Path(a.out or ROOT / "runs" / f"bench_{a.recipe}_{time.strftime('%Y%m%d_%H%M%S')}")
     load = os.getloadavg()[0]
     if load > 0.5:
         print(f"warning: load average {load:.2f} before the first run; timings need an idle machine", file=sys.stderr)

@@ -33,12 +33,11 @@ CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 _FREE_SECTIONS = ("task", "reward.weights")
 
 
-def load_config(name: str, argv: list[str]) -> DictConfig:
-    """Load ``configs/<name>.yaml`` and apply ``key.sub=value`` overrides from ``argv``.
+def parse_cli(name: str, argv: list[str]) -> tuple[Path, list[str]]:
+    """The config file and the ``key.sub=value`` overrides of a recipe's command line.
 
-    ``--config PATH`` replaces the default file; ``--resume [RUN_DIR]`` sets
-    ``checkpoint.resume``. Unknown keys are errors that name the key; ``task.*``
-    keys are checked against NavConfig when the env is built.
+    ``--config PATH`` replaces ``configs/<name>.yaml``; ``--resume [RUN_DIR]`` sets
+    ``checkpoint.resume``; ``-h`` prints the usage and exits.
     """
     path = CONFIG_DIR / f"{name}.yaml"
     overrides: list[str] = []
@@ -49,7 +48,7 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
                   f"defaults and documentation of every key: {path}")
             sys.exit(0)
         if a == "--config":
-            path = Path(next(it))
+            path = Path(next(it, ""))
         elif a.startswith("--config="):
             path = Path(a.split("=", 1)[1])
         elif a == "--resume":
@@ -60,9 +59,24 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
             overrides.append(a)
         else:
             raise ConfigError(f"unrecognised argument {a!r}: expected key=value, --config FILE or --resume")
+    return path, overrides
+
+
+def load_config(name: str, argv: list[str]) -> DictConfig:
+    """``configs/<name>.yaml`` (or ``--config FILE``) with the command line's overrides, validated.
+
+    Unknown keys are errors that name the key; ``task.*`` keys are checked against
+    NavConfig/LineConfig when the task is built.
+    """
+    path, overrides = parse_cli(name, argv)
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}")
-    cfg = OmegaConf.create(yaml.safe_load(path.read_text()) or {})
+    return _merged(yaml.safe_load(path.read_text()) or {}, overrides, str(path))
+
+
+def _merged(base: dict[str, Any], overrides: list[str], source: str) -> DictConfig:
+    """``base`` (a config as a dict) with dotted ``overrides``: unknown keys refused, every value validated."""
+    cfg = OmegaConf.create(base)
     defaults = cfg.copy()
     for sec in _FREE_SECTIONS:
         if OmegaConf.select(cfg, sec) is None:
@@ -74,9 +88,29 @@ def load_config(name: str, argv: list[str]) -> DictConfig:
         cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(overrides))
     except (ConfigAttributeError, ConfigKeyError) as e:
         key = getattr(e, "full_key", None) or str(e).splitlines()[0]
-        raise ConfigError(f"unknown config key '{key}'{_did_you_mean(cfg, str(key))} (see {path} for every valid key)") from None
+        raise ConfigError(f"unknown config key '{key}'{_did_you_mean(cfg, str(key))} (see {source} for every valid key)") from None
     validate(cfg, defaults)
     return cfg
+
+
+# What a resumed run may change from the config it was started with: its length, evaluation,
+# logging, checkpoint cadence, threads and device. Anything else would make it another experiment.
+RESUME_CHANGES = ("train.total_frames", "eval.", "logger.", "checkpoint.", "threads", "device")
+
+
+def resumed_config(saved: dict[str, Any], argv: list[str], name: str, run: Path) -> tuple[DictConfig, list[str]]:
+    """The config a resumed run continues with: the one it was started with (``saved``, from its
+    checkpoint) plus the command line's overrides, of which only :data:`RESUME_CHANGES` may change a
+    value. Returns the config and one line per changed value; a refused change is a ConfigError."""
+    _, overrides = parse_cli(name, argv)
+    cfg = _merged(saved, overrides, f"{run}/config.yaml")
+    old, new = _leaves(saved), _leaves(OmegaConf.to_container(cfg, resolve=True))
+    changed = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k) and k not in ("checkpoint.resume", "logger.run_dir")]
+    refused = [k for k in changed if not any(k == p or (p.endswith(".") and k.startswith(p)) for p in RESUME_CHANGES)]
+    if refused:
+        raise ConfigError(f"--resume={run}: cannot change {', '.join(f'{k} ({old.get(k)!r} -> {new.get(k)!r})' for k in refused)}; "
+                          f"a resumed run keeps the config it was started with except {', '.join(RESUME_CHANGES)}. Start a new run instead.")
+    return cfg, [f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in changed]
 
 
 def _is_int(v: Any) -> bool:
@@ -186,15 +220,32 @@ def nav_config(cfg: DictConfig, **extra: Any) -> NavConfig:
     return NavConfig.from_dict(merge(d, extra), where="config")
 
 
-def make_run_dir(cfg: DictConfig, name: str) -> Path:
-    """``<logger.root>/<name>_<timestamp>`` unless ``logger.run_dir`` is set."""
+def make_run_dir(cfg: DictConfig, name: str, resuming: bool = False) -> Path:
+    """The run directory: ``logger.run_dir``, or a new ``<logger.root>/<name>_<time>_seed<seed>``.
+
+    A new run's directory is created exclusively: an automatic name that exists already
+    (two runs started in the same second) gets a ``_2``, ``_3``, ... suffix, and an explicit
+    ``logger.run_dir`` that already holds a run is refused (resume it, or pick another).
+    """
     if cfg.logger.run_dir:
         run = Path(cfg.logger.run_dir)
-    else:
-        stamp = _dt.datetime.now().strftime("%Y%m%d_%H%M%S")
-        run = Path(cfg.logger.root) / f"{name}_{stamp}_seed{cfg.seed}"
-    run.mkdir(parents=True, exist_ok=True)
-    return run
+        if resuming:
+            return run
+        if run.is_dir() and any((run / f).exists() for f in ("checkpoint.pt", "config.yaml", "actor.pt")):
+            raise ConfigError(f"logger.run_dir={run} already holds a run; continue it with --resume={run} or choose another directory")
+        run.mkdir(parents=True, exist_ok=True)
+        return run
+    stamp = _dt.datetime.now().strftime("%Y%m%d_%H%M%S")
+    base = Path(cfg.logger.root) / f"{name}_{stamp}_seed{cfg.seed}"
+    base.parent.mkdir(parents=True, exist_ok=True)
+    for i in range(1, 1000):
+        run = base if i == 1 else base.with_name(f"{base.name}_{i}")
+        try:
+            run.mkdir()
+            return run
+        except FileExistsError:
+            continue
+    raise ConfigError(f"could not create a new run directory next to {base}")
 
 
 def save_config(cfg: DictConfig, run: Path) -> None:
@@ -256,17 +307,17 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     return load_checked(path)
 
 
-def find_resume_dir(cfg: DictConfig) -> Path | None:
-    """The run directory to resume: an explicit path, or the newest run of this recipe."""
+def find_resume_dir(cfg: DictConfig, name: str) -> Path | None:
+    """The run directory to resume: an explicit path, or the newest run of recipe ``name``."""
     r = cfg.checkpoint.resume
     if r in (False, None, "", "false"):
         return None
     if r is True or r == "true":
         if cfg.logger.run_dir:
             return Path(cfg.logger.run_dir)
-        runs = sorted((p for p in Path(cfg.logger.root).glob("*") if (p / "checkpoint.pt").is_file()), key=lambda p: p.stat().st_mtime)
+        runs = sorted((p for p in Path(cfg.logger.root).glob(f"{name}_*") if (p / "checkpoint.pt").is_file()), key=lambda p: p.stat().st_mtime)
         if not runs:
-            raise FileNotFoundError(f"--resume: no run with a checkpoint.pt under {cfg.logger.root}")
+            raise FileNotFoundError(f"--resume: no {name} run with a checkpoint.pt under {cfg.logger.root}")
         return runs[-1]
     return Path(str(r))
 
@@ -377,7 +428,7 @@ def config_dict(cfg: DictConfig) -> dict[str, Any]:
 
 
 __all__ = [
-    "load_config", "nav_config", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
+    "parse_cli", "load_config", "resumed_config", "nav_config", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
     "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume_dir", "StopFlag", "ThreadGovernor", "write_json",
     "config_dict", "to_dict",
 ]

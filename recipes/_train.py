@@ -161,20 +161,27 @@ class Trainer:
 
     def __init__(self, name: str, argv: list[str], ckpt_format: str, adapter: type = NavAdapter) -> None:
         self.name, self.ckpt_format = name, ckpt_format
-        self.cfg = cfg = C.load_config(name, argv)
-        C.check_logger(cfg)
-        resume_dir = C.find_resume_dir(cfg)
+        cfg = C.load_config(name, argv)
+        resume_dir = C.find_resume_dir(cfg, name)
         self.ckpt: dict[str, Any] | None = None
         if resume_dir is not None:
             self.ckpt = C.load_checkpoint(resume_dir / "checkpoint.pt")
             if self.ckpt.get("format") != ckpt_format:
                 raise C.ConfigError(f"{resume_dir / 'checkpoint.pt'} is not a {name} checkpoint (format {self.ckpt.get('format')!r})")
+            cfg, changes = C.resumed_config(self.ckpt["config"], argv, name, resume_dir)
             cfg.logger.run_dir = str(resume_dir)
+            for line in changes:
+                print(f"resume: {line}")
+            if int(self.ckpt["counters"]["frames"]) >= int(cfg.train.total_frames):
+                print(f"resume: the run already has {int(self.ckpt['counters']['frames']):,} of train.total_frames={int(cfg.train.total_frames):,} "
+                      "frames; raise train.total_frames to train on")
+        self.cfg = cfg
+        C.check_logger(cfg)
         self.threads = C.ThreadGovernor(cfg.threads)
         C.seed_everything(cfg.seed)
         self.device = torch.device(cfg.device)
         self.task = adapter.from_recipe(cfg)
-        self.run = C.make_run_dir(cfg, name)
+        self.run = C.make_run_dir(cfg, name, resuming=resume_dir is not None)
         C.save_config(cfg, self.run)
         self.logger = C.make_logger(cfg, self.run)
         self.env = self.task.make_env(int(cfg.env.num_envs), self.device, int(cfg.seed))

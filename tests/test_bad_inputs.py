@@ -159,3 +159,50 @@ def test_recipe_refuses_to_resume_a_damaged_checkpoint(tmp_path):
     ck.write_bytes(ck.read_bytes()[:-300])
     with pytest.raises(CheckpointError, match="checkpoint.pt"):
         td3.main(tiny + ["train.total_frames=256", f"checkpoint.resume={run}"])
+
+
+# --------------------------------------------------------------------------- runs and resume
+
+TINY_TD3 = ["threads=1", "env.num_envs=16", "env.max_steps=60", "eval.interval_frames=0", "eval.final_episodes=4", "eval.record_episodes=0",
+            "checkpoint.interval_frames=128", "logger.progress=false", "train.frames_per_batch=128", "train.init_random_frames=128",
+            "train.updates_per_batch=2", "train.batch_size=32", "train.hidden=[16,16]", "train.buffer_size=1000"]
+
+
+def test_resume_keeps_the_saved_config_and_refuses_other_changes(tmp_path, capsys):
+    td3 = importlib.import_module("td3_lidar")
+    run = tmp_path / "run"
+    td3.main(TINY_TD3 + ["train.total_frames=128", "train.lr_actor=0.001", f"logger.run_dir={run}"])
+    # defaults on the command line do not matter: the run's own config is continued
+    with pytest.raises(ConfigError, match=r"cannot change train\.lr_actor \(0\.001 -> 0\.0005\)"):
+        td3.main(["train.lr_actor=0.0005", f"--resume={run}"])
+    capsys.readouterr()
+    res = td3.main(["train.total_frames=256", "logger.progress=false", f"--resume={run}"])
+    assert res["frames"] == 256
+    out = capsys.readouterr().out
+    assert "resume: train.total_frames: 128 -> 256" in out
+    import yaml
+
+    saved = yaml.safe_load((run / "config.yaml").read_text())
+    assert saved["train"]["lr_actor"] == 0.001 and saved["env"]["num_envs"] == 16, "resume went back to the defaults"
+
+
+def test_resume_without_a_path_takes_only_this_recipes_runs(tmp_path):
+    td3 = importlib.import_module("td3_lidar")
+    td3.main(TINY_TD3 + ["train.total_frames=128", f"logger.root={tmp_path}"])
+    with pytest.raises(FileNotFoundError, match=f"no ppo_lidar run with a checkpoint.pt under {tmp_path}"):
+        importlib.import_module("ppo_lidar").main(["--resume", f"logger.root={tmp_path}"])
+
+
+def test_run_directories_are_never_shared(tmp_path):
+    import _common
+    from omegaconf import OmegaConf
+
+    cfg = OmegaConf.create({"seed": 0, "logger": {"root": str(tmp_path), "run_dir": None}})
+    runs = {_common.make_run_dir(cfg, "td3_lidar") for _ in range(3)}  # same second, same seed
+    assert len(runs) == 3 and all(r.is_dir() for r in runs)
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "config.yaml").write_text("seed: 0\n")
+    cfg.logger.run_dir = str(taken)
+    with pytest.raises(ConfigError, match="already holds a run"):
+        _common.make_run_dir(cfg, "td3_lidar")
