@@ -159,7 +159,7 @@ class LineAdapter:
 class Trainer:
     """Setup and loop of one recipe run; see the module docstring."""
 
-    def __init__(self, name: str, argv: list[str], ckpt_format: str, adapter: type = NavAdapter) -> None:
+    def __init__(self, name: str, argv: list[str], ckpt_format: str, adapter: type = NavAdapter, action_mode: str | None = None) -> None:
         self.name, self.ckpt_format = name, ckpt_format
         cfg = C.load_config(name, argv)
         resume_dir = C.find_resume_dir(cfg, name)
@@ -181,6 +181,8 @@ class Trainer:
         C.seed_everything(cfg.seed)
         self.device = torch.device(cfg.device)
         self.task = adapter.from_recipe(cfg)
+        if action_mode is not None and self.task.config.action.mode != action_mode:
+            raise C.ConfigError(f"{name} needs task.action.mode={action_mode}, got {self.task.config.action.mode!r}")
         self.run = C.make_run_dir(cfg, name, resuming=resume_dir is not None)
         C.save_config(cfg, self.run)
         self.logger = C.make_logger(cfg, self.run)

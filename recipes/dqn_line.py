@@ -26,7 +26,6 @@ from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
 from _train import LineAdapter, Trainer, main_guard, replay_update  # noqa: E402
 from ppo_lidar import observation_stats  # noqa: E402
 
@@ -34,10 +33,8 @@ from torchnav.policy import Actor  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", adapter=LineAdapter)
+    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", adapter=LineAdapter, action_mode="discrete")
     tc, env, device = t.cfg.train, t.env, t.device
-    if t.task.config.action.mode != "discrete":
-        raise C.ConfigError("DQN needs task.action.mode=discrete")
     table = torch.tensor(t.task.config.action.discrete_set, dtype=torch.float32)
 
     # -- Q-network, loss and exploration -------------------------------------------------------

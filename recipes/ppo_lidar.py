@@ -27,7 +27,6 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
 from _train import NavAdapter, Trainer, main_guard  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
@@ -56,10 +55,8 @@ def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
 
 def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -> dict:
     """Train; ``name`` picks ``configs/<name>.yaml`` and ``adapter`` the task (``ppo_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", adapter=adapter)
-    cfg, tc, env, device = t.cfg, t.cfg.train, t.env, t.device
-    if t.task.config.action.mode != "continuous":
-        raise C.ConfigError("PPO here needs task.action.mode=continuous")
+    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", adapter=adapter, action_mode="continuous")
+    tc, env, device = t.cfg.train, t.env, t.device
 
     # -- networks: both normalise observations with statistics of a random-action rollout -----
     obs_size, act_size = env.task.obs_size, 2

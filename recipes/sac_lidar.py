@@ -26,7 +26,6 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
 from _train import Trainer, main_guard, replay_update  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
@@ -39,10 +38,8 @@ def make_critic(obs_size: int, act_size: int, hidden) -> ValueOperator:
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("sac_lidar", argv, ckpt_format="torchnav-sac-v1")
+    t = Trainer("sac_lidar", argv, ckpt_format="torchnav-sac-v1", action_mode="continuous")
     tc, env, device = t.cfg.train, t.env, t.device
-    if t.task.config.action.mode != "continuous":
-        raise C.ConfigError("SAC needs task.action.mode=continuous")
 
     # -- networks and loss: the actor's linear head emits (loc, raw scale) --------------------
     obs_size, act_size = env.task.obs_size, 2

@@ -30,7 +30,6 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import MLP, AdditiveGaussianModule
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
 from _train import Trainer, main_guard, replay_update  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
@@ -57,10 +56,8 @@ def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("td3_lidar", argv, ckpt_format="torchnav-td3-v3")
+    t = Trainer("td3_lidar", argv, ckpt_format="torchnav-td3-v3", action_mode="continuous")
     tc, env, device = t.cfg.train, t.env, t.device
-    if t.task.config.action.mode != "continuous":
-        raise C.ConfigError("TD3 needs task.action.mode=continuous")
 
     # -- networks ------------------------------------------------------------------------------
     obs_size, act_size = env.task.obs_size, 2

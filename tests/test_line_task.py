@@ -3,7 +3,6 @@ termination, laps, the PD baseline, TorchRL contract (specs, masked resets, seed
 
 from __future__ import annotations
 
-import math
 
 import pytest
 import torch
@@ -13,7 +12,7 @@ from torchrl.envs.utils import check_env_specs, step_mdp
 
 from torchnav.config import ConfigError
 from torchnav.controllers.line_follower import LineFollower
-from torchnav.envs import LineEnv, make_line_env
+from torchnav.envs import make_line_env
 from torchnav.envs.line_env import EPISODE_KEYS, FLAG_KEYS
 from torchnav.tasks import LineConfig
 from torchnav.tracks import TrackError

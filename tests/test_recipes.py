@@ -308,7 +308,7 @@ def test_shipped_checkpoints_load_and_drive(path):
         # A policy trained on procedural worlds drives its families at an easy level here.
         easy = cfg.worlds.families and {"difficulty": 0.2}
         res = run_episodes(sp.policy, eval_config(cfg, worlds=easy or None), 8, seed=1)
-        where = f"its worlds at difficulty 0.2" if easy else cfg.map
+        where = "its worlds at difficulty 0.2" if easy else cfg.map
         assert res["success"].sum() >= 4, f"{path.name} reached only {int(res['success'].sum())}/8 goals on {where}"
     else:
         from torchnav.line_evaluation import run_line_episodes

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 import signal
 import subprocess
@@ -11,11 +10,10 @@ import sys
 import textwrap
 import time
 import warnings
-from collections import Counter, defaultdict
+from collections import Counter
 
 import numpy as np
 import pytest
-import torch
 from mcap.reader import make_reader
 
 from torchnav.envs.nav_env import make_env

@@ -483,7 +483,6 @@ def test_reward_terms_sum_to_reward(preset):
     state, cur, gen = start(task)
     assert task.term_names == tuple(PRESETS[preset])
     actions = torch.rand(30, 8, 2, generator=torch.Generator().manual_seed(3)) * 2 - 1
-    ret = torch.zeros(8)
     for a in actions:
         prev = state
         state, out = task.step(state, a, gen)

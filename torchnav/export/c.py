@@ -75,7 +75,7 @@ def render_header(net: Network, name: str) -> str:
         f"#define {N}_ACT_SIZE {net.act_size}",
     ]
     if discrete:
-        lines += [f"/* Number of discrete actions (Q-values). */", f"#define {N}_NUM_ACTIONS {net.out_size}"]
+        lines += ["/* Number of discrete actions (Q-values). */", f"#define {N}_NUM_ACTIONS {net.out_size}"]
     lines += ["", f"/* obs: {N}_OBS_SIZE floats; action: {N}_ACT_SIZE floats. */",
               f"void {name}_forward(const float *obs, float *action);"]
     if discrete:

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import atexit
 import json
-import math
 import os
 import signal
 import threading

@@ -32,7 +32,6 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .math import safe_hypot, wrap_angle
 from .state import World
 
 _INF = float("inf")

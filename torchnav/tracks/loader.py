@@ -14,47 +14,44 @@ Two kinds of file:
 
 from __future__ import annotations
 
+import math
 import os
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from ..maps.loader import _bool, _Ctx, _DuplicateKey, _is_number, _Loader, _mapping, _number, _show, _vector
+from ..maps.occupancy import ImageError, read_mask
+from ..yamlcheck import Ctx, check_bool, check_grey_level, check_mapping, check_number, check_vector, is_number, load_yaml, show
 from .geometry import CurveError, catmull_rom, fillet_polyline, resample
+from .png import track_from_mask
 from .track import Track, TrackError
 
 DEFAULT_SPACING = 0.02  # m
 
 
-class _TrackCtx(_Ctx):
-    def fail(self, key: str, msg: str) -> TrackError:  # type: ignore[override]
-        return TrackError(f"{self.source}: {key}: {msg}" if key else f"{self.source}: {msg}")
-
-
-def _points(ctx: _Ctx, v: Any, key: str, min_n: int) -> np.ndarray:
+def _points(ctx: Ctx, v: Any, key: str, min_n: int) -> np.ndarray:
     ok = isinstance(v, list) and len(v) >= min_n and all(
-        isinstance(p, list) and len(p) == 2 and all(_is_number(x) for x in p) for p in v
+        isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p) for p in v
     )
     if not ok:
-        raise ctx.fail(key, f"expected a list of at least {min_n} [x, y] points in m, got {_show(v)}")
+        raise ctx.fail(key, f"expected a list of at least {min_n} [x, y] points in m, got {show(v)}")
     return np.asarray(v, dtype=np.float64)
 
 
-def _curve(ctx: _Ctx, v: dict, key: str, spacing: float, force_closed: bool = False) -> tuple[np.ndarray, bool]:
+def _curve(ctx: Ctx, v: dict, key: str, spacing: float, force_closed: bool = False) -> tuple[np.ndarray, bool]:
     """A resampled polyline from a line entry's ``points``, ``closed``, ``corner_radius``, ``smooth``."""
-    closed = True if force_closed else _bool(ctx, v.get("closed", False), f"{key}.closed")
+    closed = True if force_closed else check_bool(ctx, v.get("closed", False), f"{key}.closed")
     pts = _points(ctx, v["points"], f"{key}.points", 3 if closed else 2)
-    smooth = _bool(ctx, v.get("smooth", False), f"{key}.smooth")
+    smooth = check_bool(ctx, v.get("smooth", False), f"{key}.smooth")
     cr = v.get("corner_radius", 0.0)
     if smooth and "corner_radius" in v:
         raise ctx.fail(f"{key}.corner_radius", "give either corner_radius or smooth: true, not both")
     if isinstance(cr, list):
-        radii = np.asarray(_vector(ctx, cr, f"{key}.corner_radius", len(pts), "nonneg"))
+        radii = np.asarray(check_vector(ctx, cr, f"{key}.corner_radius", len(pts), "nonneg"))
     else:
-        radii = np.full(len(pts), _number(ctx, cr, f"{key}.corner_radius", "nonneg"))
+        radii = np.full(len(pts), check_number(ctx, cr, f"{key}.corner_radius", "nonneg"))
     try:
         dense = catmull_rom(pts, closed) if smooth else fillet_polyline(pts, radii, closed)
         return resample(dense, spacing, closed), closed
@@ -62,10 +59,10 @@ def _curve(ctx: _Ctx, v: dict, key: str, spacing: float, force_closed: bool = Fa
         raise ctx.fail(f"{key}.corner_radius" if "radi" in str(e) else f"{key}.points", str(e)) from None
 
 
-def _walls(ctx: _Ctx, v: Any) -> np.ndarray:
+def _walls(ctx: Ctx, v: Any) -> np.ndarray:
     if not isinstance(v, list):
-        raise ctx.fail("walls", f"expected a list of [x1, y1, x2, y2] segments in m, got {_show(v)}")
-    return np.asarray([_vector(ctx, w, f"walls[{i}]", 4) for i, w in enumerate(v)], dtype=np.float64).reshape(-1, 4)
+        raise ctx.fail("walls", f"expected a list of [x1, y1, x2, y2] segments in m, got {show(v)}")
+    return np.asarray([check_vector(ctx, w, f"walls[{i}]", 4) for i, w in enumerate(v)], dtype=np.float64).reshape(-1, 4)
 
 
 def _segments(line: np.ndarray) -> np.ndarray:
@@ -82,36 +79,35 @@ def parse_track(data: Any, source: str = "<dict>", default_name: str = "track", 
 
     ``base_dir`` resolves a relative ``image:`` path (the YAML file's folder).
     """
-    ctx = _TrackCtx(source)
+    ctx = Ctx(source, TrackError)
     if not isinstance(data, dict):
-        raise ctx.fail("", f"a track file must be a mapping with 'lines' or 'image', got {_show(data)}")
+        raise ctx.fail("", f"a track file must be a mapping with 'lines' or 'image', got {show(data)}")
     if "image" in data:
-        d = _mapping(ctx, data, "", ("image", "resolution"), COMMON_KEYS + IMAGE_KEYS[2:])
+        d = check_mapping(ctx, data, "", ("image", "resolution"), COMMON_KEYS + IMAGE_KEYS[2:])
     else:
-        d = _mapping(ctx, data, "", ("width", "lines"), COMMON_KEYS)
+        d = check_mapping(ctx, data, "", ("width", "lines"), COMMON_KEYS)
     name = d.get("name", default_name)
     desc = d.get("description", "")
     for k, val in (("name", name), ("description", desc)):
         if not isinstance(val, str):
-            raise ctx.fail(k, f"expected a string, got {_show(val)}")
-    spacing = _number(ctx, d.get("spacing", DEFAULT_SPACING), "spacing", "pos")
+            raise ctx.fail(k, f"expected a string, got {show(val)}")
+    spacing = check_number(ctx, d.get("spacing", DEFAULT_SPACING), "spacing", "pos")
     walls = _walls(ctx, d.get("walls", []))
     if "image" in d:
-        from .png import track_from_png
 
-        return track_from_png(ctx, d, name, desc, spacing, walls, base_dir)
-    width = _number(ctx, d["width"], "width", "pos")
+        return _track_from_png(ctx, d, name, desc, spacing, walls, base_dir)
+    width = check_number(ctx, d["width"], "width", "pos")
     lines_v = d["lines"]
     if not isinstance(lines_v, list) or not lines_v:
-        raise ctx.fail("lines", f"expected a non-empty list of lines, got {_show(lines_v)}")
+        raise ctx.fail("lines", f"expected a non-empty list of lines, got {show(lines_v)}")
     lines, closed, lap_flags = [], [], []
     for i, lv in enumerate(lines_v):
         key = f"lines[{i}]"
-        lv = _mapping(ctx, lv, key, ("points",), LINE_KEYS[1:])
+        lv = check_mapping(ctx, lv, key, ("points",), LINE_KEYS[1:])
         line, c = _curve(ctx, lv, key, spacing)
         lines.append(line)
         closed.append(c)
-        lap_flags.append(_bool(ctx, lv.get("lap", False), f"{key}.lap"))
+        lap_flags.append(check_bool(ctx, lv.get("lap", False), f"{key}.lap"))
     if sum(lap_flags) > 1:
         raise ctx.fail("lines", "only one line may have lap: true")
     if any(lap_flags):
@@ -128,16 +124,32 @@ def parse_track(data: Any, source: str = "<dict>", default_name: str = "track", 
     )
 
 
-def _parse_text(text: str, source: str, default_name: str, base_dir: str | os.PathLike | None) -> Track:
+def _track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, walls: np.ndarray, base_dir: Any) -> Track:
+    """The ``image:`` form of a track file (called by the loader with the validated mapping)."""
+    img = d["image"]
+    if not isinstance(img, str):
+        raise ctx.fail("image", f"expected a path to a PNG file, got {img!r}")
+    path = Path(img) if base_dir is None or os.path.isabs(img) else Path(base_dir) / img
+    res = check_number(ctx, d["resolution"], "resolution", "pos")
+    origin = check_vector(ctx, d["origin"], "origin", 2) if "origin" in d else None
+    thr = check_grey_level(ctx, d.get("threshold", 0.5), "threshold")
+    invert = check_bool(ctx, d.get("invert", False), "invert")
+    width = check_number(ctx, d["width"], "width", "pos") if "width" in d else None
+    lap = None
+    if "lap" in d:
+        lv = check_mapping(ctx, d["lap"], "lap", ("points",), ("corner_radius", "smooth"))
+        lap, _ = _curve(ctx, lv, "lap", spacing, force_closed=True)
     try:
-        data = yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
-    except _DuplicateKey as e:
-        raise TrackError(f"{source}: {e.key}: duplicate key at line {e.mark.line + 1}") from None
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise TrackError(f"{source}: YAML syntax error{where}: {getattr(e, 'problem', None) or e}") from None
-    return parse_track(data, source, default_name, base_dir)
+        mask = read_mask(path, thr, invert)
+    except ImageError as e:
+        raise ctx.fail("image", str(e)) from None
+    if not math.isfinite(res):
+        raise ctx.fail("resolution", "must be finite")
+    return track_from_mask(mask, res, origin, width, lap, spacing, walls, name, ctx.source, desc)
+
+
+def _parse_text(text: str, source: str, default_name: str, base_dir: str | os.PathLike | None) -> Track:
+    return parse_track(load_yaml(text, source, TrackError), source, default_name, base_dir)
 
 
 def _data_dir():

@@ -14,14 +14,9 @@ needs an explicit ``lap``.
 
 from __future__ import annotations
 
-import math
-import os
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 
-from ..maps.occupancy import ImageError, read_mask
 from .geometry import resample
 from .track import Track, TrackError
 
@@ -137,30 +132,3 @@ def track_from_mask(
         name=name, width=float(width), segments=segments, lines=(), lap=lap,
         walls=np.zeros((0, 4)) if walls is None else walls, spacing=spacing, source=source, description=description,
     )
-
-
-def track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, walls: np.ndarray, base_dir: Any) -> Track:
-    """The ``image:`` form of a track file (called by the loader with the validated mapping)."""
-    from ..maps.loader import _bool, _grey_level, _mapping, _number, _vector
-    from .loader import _curve
-
-    img = d["image"]
-    if not isinstance(img, str):
-        raise ctx.fail("image", f"expected a path to a PNG file, got {img!r}")
-    path = Path(img) if base_dir is None or os.path.isabs(img) else Path(base_dir) / img
-    res = _number(ctx, d["resolution"], "resolution", "pos")
-    origin = _vector(ctx, d["origin"], "origin", 2) if "origin" in d else None
-    thr = _grey_level(ctx, d.get("threshold", 0.5), "threshold")
-    invert = _bool(ctx, d.get("invert", False), "invert")
-    width = _number(ctx, d["width"], "width", "pos") if "width" in d else None
-    lap = None
-    if "lap" in d:
-        lv = _mapping(ctx, d["lap"], "lap", ("points",), ("corner_radius", "smooth"))
-        lap, _ = _curve(ctx, lv, "lap", spacing, force_closed=True)
-    try:
-        mask = read_mask(path, thr, invert)
-    except ImageError as e:
-        raise ctx.fail("image", str(e)) from None
-    if not math.isfinite(res):
-        raise ctx.fail("resolution", "must be finite")
-    return track_from_mask(mask, res, origin, width, lap, spacing, walls, name, ctx.source, desc)
