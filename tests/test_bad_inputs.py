@@ -206,3 +206,75 @@ def test_run_directories_are_never_shared(tmp_path):
     cfg.logger.run_dir = str(taken)
     with pytest.raises(ConfigError, match="already holds a run"):
         _common.make_run_dir(cfg, "td3_lidar")
+
+
+# --------------------------------------------------------------------------- maps and tracks
+
+def _alias_bomb(top: str) -> str:
+    """A document of 81 alias references that expands to 9^10 (3.5 billion) values under ``walls``."""
+    levels = ["l0: &l0 [1, 1, 1, 1, 1, 1, 1, 1, 1]"] + [f"l{i}: &l{i} [{', '.join([f'*l{i - 1}'] * 9)}]" for i in range(1, 9)]
+    return top + "\n".join(levels) + f"\nwalls: [{', '.join(['*l8'] * 9)}]\n"
+
+
+ALIAS_BOMB = _alias_bomb("size: [5, 5]\n")
+
+
+BAD_MAPS = [
+    (ALIAS_BOMB, "expands to more than 2,000,000 values through its aliases"),
+    ("size: [5, 5]\nl0: &l0 [1]\nwalls: [" + ", ".join(["*l0"] * 101) + "]", "more than 100 alias references"),
+    ("size: " + "[" * 40 + "1" + "]" * 40, "nested deeper than 32 levels"),
+    ("size: [5, 5]\nrandom_boxes: {count: 1000000, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}", "random_boxes.count: expected an integer in [0, 10,000]"),
+    ("size: [1.0e39, 1.0e39]", "size: at most 10000 m per side"),
+    ("size: [50000, 5]", "size: at most 10000 m per side"),
+    ("size: [5, 5]\nsize: [6, 6]", "size: duplicate key at line 2"),
+    ("size: [5, 5]\nboxs: []", "boxs: unknown key (did you mean 'boxes'?)"),
+    ("size: [5, 5]\nboxes:\n  - {center: [0, 0], size: [nan, 1]}", "boxes[0].size"),
+    ("size: [5, 5\n", "YAML syntax error"),
+]
+
+
+@pytest.mark.parametrize("text,message", BAD_MAPS, ids=[m for _, m in BAD_MAPS])
+def test_bad_map_file_is_named_quickly(tmp_path, text, message):
+    import time
+
+    from torchnav.maps import load_map
+
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    t0 = time.perf_counter()
+    with pytest.raises(MapError) as e:
+        load_map(path)
+    assert message in str(e.value) and str(path) in str(e.value)
+    assert time.perf_counter() - t0 < 5, "the loader must not hang"
+
+
+@pytest.mark.parametrize("text", ["size: [5, 5]\nboxes:\n  - {center: [0, 0], size: [5, 5]}",  # a box as large as the world
+                                  "size: [0.3, 0.3]"])  # smaller than the robot
+def test_map_without_room_for_the_robot_is_refused(tmp_path, text):
+    from torchnav.envs import make_env
+
+    path = tmp_path / "full.yaml"
+    path.write_text(text)
+    with pytest.raises(MapError, match="no room for a start"):
+        make_env(str(path), num_envs=2)
+
+
+def test_huge_image_is_refused_before_decoding(tmp_path, monkeypatch):
+    from PIL import Image
+
+    from torchnav.maps import load_map, occupancy
+
+    Image.new("L", (300, 300), 255).save(tmp_path / "big.png")
+    monkeypatch.setattr(occupancy, "MAX_PIXELS", 200 * 200)
+    (tmp_path / "m.yaml").write_text("size: [10, 10]\noccupancy: {image: big.png, resolution: 0.01}\n")
+    with pytest.raises(MapError, match="300 x 300 pixels is more than the 40,000 allowed"):
+        load_map(tmp_path / "m.yaml")
+
+
+def test_track_alias_bomb_is_refused(tmp_path):
+    from torchnav.tracks import load_track
+
+    path = tmp_path / "t.yaml"
+    path.write_text(_alias_bomb("width: 0.02\n"))
+    with pytest.raises(TrackError, match="expands to more than"):
+        load_track(path)

@@ -5,8 +5,10 @@ than the one written, and a hostile file must not hang the loader. So
 
 * :func:`load_yaml` uses a ``SafeLoader`` that refuses duplicate keys, reads ``1e-3``
   as a float (YAML 1.1 would read a string), and bounds the document: at most
-  :data:`MAX_ALIASES` alias references (a "billion laughs" file expands
-  exponentially through them) and :data:`MAX_DEPTH` levels of nesting;
+  :data:`MAX_ALIASES` alias references, :data:`MAX_DEPTH` levels of nesting and
+  :data:`MAX_NODES` values once every alias is expanded (a "billion laughs" file
+  expands exponentially through a few dozen aliases), all counted while composing,
+  before anything is expanded;
 * the ``check_*`` helpers validate one value each and raise the caller's error type
   with the file and the dotted key path (``maps/foo.yaml: boxes[2].size: ...``).
 """
@@ -22,6 +24,7 @@ import yaml
 
 MAX_ALIASES = 100  # alias references (*name) per document
 MAX_DEPTH = 32  # nesting levels of mappings and sequences
+MAX_NODES = 2_000_000  # values of the document with every alias expanded
 
 
 class YamlLimitError(yaml.YAMLError):
@@ -43,19 +46,34 @@ class Loader(yaml.SafeLoader):
         super().__init__(stream)
         self._aliases = 0
         self._depth = 0
+        self._sizes: dict[int, int] = {}  # id(node) -> values under it with aliases expanded
 
     def compose_node(self, parent, index):  # noqa: ANN001 - PyYAML's signature
+        mark = self.peek_event().start_mark
         if self.check_event(yaml.AliasEvent):
             self._aliases += 1
             if self._aliases > MAX_ALIASES:
-                raise YamlLimitError(f"more than {MAX_ALIASES} alias references (*name)", self.peek_event().start_mark)
+                raise YamlLimitError(f"more than {MAX_ALIASES} alias references (*name)", mark)
         self._depth += 1
         try:
             if self._depth > MAX_DEPTH:
-                raise YamlLimitError(f"nested deeper than {MAX_DEPTH} levels", self.peek_event().start_mark)
-            return super().compose_node(parent, index)
+                raise YamlLimitError(f"nested deeper than {MAX_DEPTH} levels", mark)
+            node = super().compose_node(parent, index)
         finally:
             self._depth -= 1
+        size = self._sizes.get(id(node))
+        if size is None:
+            get = lambda n: self._sizes.get(id(n), 1)  # noqa: E731
+            if isinstance(node, yaml.SequenceNode):
+                size = 1 + sum(get(c) for c in node.value)
+            elif isinstance(node, yaml.MappingNode):
+                size = 1 + sum(get(k) + get(v) for k, v in node.value)
+            else:
+                size = 1
+            self._sizes[id(node)] = size
+        if size > MAX_NODES:
+            raise YamlLimitError(f"expands to more than {MAX_NODES:,} values through its aliases", mark)
+        return node
 
     def construct_mapping(self, node, deep=False):  # noqa: ANN001
         seen = set()

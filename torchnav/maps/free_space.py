@@ -8,11 +8,12 @@ objects in pictures. Only the fixed obstacles of a :class:`MapSpec` are used.
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 
 import numpy as np
 
-from .spec import MapSpec
+from .spec import MapError, MapSpec
 
 
 def obstacle_distance(spec: MapSpec, xy: np.ndarray) -> np.ndarray:
@@ -66,6 +67,18 @@ def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> t
     # The world rectangle bounds the grid even when the map has no boundary walls.
     edge = np.minimum(np.minimum(gx - xmin, xmax - gx), np.minimum(gy - ymin, ymax - gy))
     return (d > robot_radius) & (edge > robot_radius), xs, ys
+
+
+@functools.lru_cache(maxsize=64)
+def check_room(spec: MapSpec, robot_need: float, goal_need: float) -> None:
+    """Raise a MapError unless some place lies ``robot_need`` m from every fixed obstacle and the
+    world's edge (a start for the robot's disc) and some place ``goal_need`` m from every fixed
+    obstacle (a goal). Sampled on a grid of at most about 200 x 200 cells."""
+    res = max(0.05, max(spec.size) / 200)
+    for need, what in ((robot_need, "a start (robot radius + reset.start_clearance)"), (goal_need, "a goal (reset.goal_clearance)")):
+        if not free_grid(spec, need, res)[0].any():
+            raise MapError(f"{spec.source}: no room for {what}: no place is {need:g} m from every fixed obstacle and the "
+                           f"world's edge (sampled every {res:g} m); the map is full or smaller than the robot")
 
 
 def label_components(free: np.ndarray) -> tuple[np.ndarray, int]:

@@ -24,6 +24,9 @@ from .spec import MapError, MapSpec, RandomBoxes, RandomCircles
 
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
 _TOL = 1e-6
+MAX_SIZE = 10_000.0  # m per side
+MAX_RANDOM = 10_000  # random boxes or circles re-placed per reset
+MAX_FIXED = 100_000  # fixed obstacles of one map (walls, polygon edges, circles, boxes)
 
 
 # --------------------------------------------------------------------------- checks
@@ -170,7 +173,7 @@ def _random_boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomBoxes:
     v = check_mapping(ctx, v, k, ("count", "size_x", "size_y"), ("yaw", "clearance", "margin"))
     d = RandomBoxes.__dataclass_fields__
     rb = RandomBoxes(
-        count=check_count(ctx, v["count"], f"{k}.count"),
+        count=check_count(ctx, v["count"], f"{k}.count", MAX_RANDOM),
         size_x=check_range(ctx, v["size_x"], f"{k}.size_x", "pos"),
         size_y=check_range(ctx, v["size_y"], f"{k}.size_y", "pos"),
         yaw=check_range(ctx, v.get("yaw", list(d["yaw"].default)), f"{k}.yaw"),
@@ -187,7 +190,7 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
     v = check_mapping(ctx, v, k, ("count", "radius"), ("clearance", "margin"))
     d = RandomCircles.__dataclass_fields__
     rc = RandomCircles(
-        count=check_count(ctx, v["count"], f"{k}.count"),
+        count=check_count(ctx, v["count"], f"{k}.count", MAX_RANDOM),
         radius=check_range(ctx, v["radius"], f"{k}.radius", "pos"),
         clearance=check_number(ctx, v.get("clearance", d["clearance"].default), f"{k}.clearance", "nonneg"),
         margin=check_number(ctx, v.get("margin", d["margin"].default), f"{k}.margin", "nonneg"),
@@ -219,6 +222,11 @@ def parse_map(
     if not isinstance(name, str) or not name:
         raise ctx.fail("name", f"expected a non-empty string, got {show(name)}")
     size = check_vector(ctx, d["size"], "size", 2, "pos")
+    if max(size) > MAX_SIZE:
+        raise ctx.fail("size", f"at most {MAX_SIZE:g} m per side (float32 positions lose centimetres beyond that), got {show(d['size'])}")
+    for k in ("walls", "polygons", "circles", "boxes"):
+        if isinstance(d.get(k), list) and len(d[k]) > MAX_FIXED:
+            raise ctx.fail(k, f"{len(d[k]):,} entries; a map holds at most {MAX_FIXED:,} of a kind")
     return MapSpec(
         name=name,
         source=source,

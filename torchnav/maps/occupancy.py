@@ -26,6 +26,9 @@ class ImageError(ValueError):
     """An image file could not be read; the message names the file."""
 
 
+MAX_PIXELS = 4096 * 4096  # an occupancy or track image larger than this is refused before decoding
+
+
 def read_mask(path: str | os.PathLike, threshold: float = 0.5, invert: bool = False) -> np.ndarray:
     """``(H, W)`` bool mask of a PNG: grey level (in [0, 1]) above ``threshold``, or below it with ``invert``.
 
@@ -37,7 +40,9 @@ def read_mask(path: str | os.PathLike, threshold: float = 0.5, invert: bool = Fa
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as im:
+        with Image.open(path) as im:  # reads the header only: the size is known before any pixel is decoded
+            if im.width * im.height > MAX_PIXELS:
+                raise ImageError(f"{path}: {im.width} x {im.height} pixels is more than the {MAX_PIXELS:,} allowed; downscale the image")
             grey = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
     except FileNotFoundError:
         raise ImageError(f"{path}: image file not found") from None

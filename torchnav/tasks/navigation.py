@@ -14,6 +14,7 @@ from tensordict import tensorclass
 from torch import Tensor
 
 from ..maps import load_map
+from ..maps.free_space import check_room
 from ..sim import SimState, World, init_state, pad_world, safe_hypot, sectorize, wrap_angle
 from ..worlds import mix_worlds, slot_counts
 from ..sim import step as sim_step
@@ -65,6 +66,8 @@ class NavTask:
         self.dtype = dtype
         self.families = tuple(cfg.worlds.families)  # procedural worlds instead of the map when non-empty
         self.spec = None if self.families else load_map(cfg.map)  # the map; None with procedural worlds
+        if self.spec is not None:  # a map with no room for a start or a goal is refused before any episode
+            check_room(self.spec, cfg.robot.radius + cfg.reset.start_clearance, cfg.reset.goal_clearance)
         self.params = cfg.sim_params()
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)
