@@ -383,8 +383,14 @@ def test_transforms_compose():
     check_env_specs(env)
     r = env.rollout(10, SeededPolicy(0), break_when_any_done=False)
     torch.testing.assert_close(r["next", "step_count"][..., 0].float(), r["next", "episode", "length"][..., 0])
-    # The curriculum is checkpointed through the base env (TransformedEnv.state_dict() omits it).
-    assert int(env.base_env.state_dict()["curriculum"]["placements"]) == int(env.base_env.curriculum.placements) > 3
+    # TorchRL's TransformedEnv.state_dict() holds its transforms only; the curriculum and the
+    # generator round-trip through the base env's nn.Module state_dict (its "_extra_state").
+    sd = env.base_env.state_dict()
+    assert int(sd["_extra_state"]["curriculum"]["placements"]) == int(env.base_env.curriculum.placements) > 3
+    fresh = TransformedEnv(make_env("arena", num_envs=3, max_steps=6, seed=9), Compose(StepCounter(), RewardSum()))
+    fresh.base_env.load_state_dict(sd)
+    assert torch.equal(fresh.base_env.curriculum.radius, env.base_env.curriculum.radius)
+    assert torch.equal(fresh.base_env._generator.get_state(), env.base_env._generator.get_state())
     torch.testing.assert_close(r["next", "episode_reward"], r["next", "episode", "return"], atol=1e-4, rtol=1e-5)
     frames = TransformedEnv(
         make_env("arena", num_envs=2),
@@ -430,3 +436,12 @@ def test_compiled_step_matches_eager():
             obs.append(td["observation"].clone())
         runs.append(torch.stack(obs))
     torch.testing.assert_close(runs[1], runs[0], atol=1e-4, rtol=1e-4)
+
+
+def test_checkpoints_written_before_the_extra_state_hooks_still_load():
+    env = make_env("arena", num_envs=2, max_steps=5)
+    env.rollout(12, SeededPolicy(0), break_when_any_done=False)
+    old = env.get_extra_state()  # the {"curriculum", "generator"} dict older checkpoints hold
+    restored = make_env("arena", num_envs=2, max_steps=5, seed=77)
+    restored.load_state_dict(old)
+    assert torch.equal(restored.curriculum.placements, env.curriculum.placements)

@@ -55,7 +55,7 @@ def test_recipe_smoke_and_resume(tmp_path, recipe):
     rates = sum(summary["eval"][k]["rate"] for k in ("success", "collision", "timeout"))
     assert rates == pytest.approx(1.0)
     ck = torch.load(run / "checkpoint.pt", weights_only=True)
-    placements = int(ck["env"]["curriculum"]["placements"])
+    placements = int(ck["env"]["_extra_state"]["curriculum"]["placements"])
     assert ck["counters"]["frames"] == 512 and placements > 16
     assert ck["policy"]["algorithm"] == recipe.split("_")[0]
     assert list((run / "logs").rglob("*")), "the CSV logger wrote nothing"
@@ -74,8 +74,8 @@ def test_recipe_smoke_and_resume(tmp_path, recipe):
     assert res2["frames"] == 1024
     ck2 = torch.load(run / "checkpoint.pt", weights_only=True)
     assert ck2["counters"]["updates"] > ck["counters"]["updates"]
-    assert int(ck2["env"]["curriculum"]["placements"]) > placements
-    assert float(ck2["env"]["curriculum"]["radius"]) > float(ck["env"]["curriculum"]["radius"])
+    assert int(ck2["env"]["_extra_state"]["curriculum"]["placements"]) > placements
+    assert float(ck2["env"]["_extra_state"]["curriculum"]["radius"]) > float(ck["env"]["_extra_state"]["curriculum"]["radius"])
 
 
 def test_resume_refuses_another_recipes_checkpoint(tmp_path):

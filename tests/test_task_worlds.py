@@ -76,10 +76,11 @@ def test_curriculum_state_round_trips_and_old_checkpoints_load():
     fresh = NavEnv(worlds_cfg(curriculum=True), num_envs=4, seed=0)
     fresh.load_state_dict(sd)
     assert fresh.curriculum.difficulty.tolist() == pytest.approx([0.4, 0.5, 0.6])
-    old = {k: v for k, v in sd["curriculum"].items() if k not in ("difficulty", "family_success")}
+    cur = sd["_extra_state"]["curriculum"]
+    old = {k: v for k, v in cur.items() if k not in ("difficulty", "family_success")}
     fresh.curriculum.load_state_dict(old)  # a checkpoint from before procedural worlds
     with pytest.raises(ValueError, match="one per world family"):
-        NavEnv(NavConfig(), num_envs=4).curriculum.load_state_dict(sd["curriculum"])
+        NavEnv(NavConfig(), num_envs=4).curriculum.load_state_dict(cur)
 
 
 @pytest.mark.parametrize("worlds,match", [

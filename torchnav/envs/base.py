@@ -62,10 +62,21 @@ class BatchedEnv(EnvBase):
         """The current task state (read-only use: worlds, goals, poses of every env)."""
         return self._state
 
-    def state_dict(self) -> dict[str, Any]:
-        """RNG state, for checkpoints (episodes in flight are not saved)."""
+    # Checkpoint state goes through nn.Module's extra-state hooks, so ``env.state_dict()`` and
+    # ``env.load_state_dict(sd)`` keep nn.Module's signatures and a TransformedEnv's state_dict
+    # includes it (under ``base_env._extra_state``). Episodes in flight are not saved.
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """The generator's state (NavEnv adds the curriculum)."""
         return {"generator": self._generator.get_state()}
 
-    def load_state_dict(self, sd: dict[str, Any]) -> None:
-        if "generator" in sd:
-            self._generator.set_state(sd["generator"])
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        if "generator" in state:
+            self._generator.set_state(state["generator"])
+
+    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
+        """nn.Module's, also accepting the ``{"curriculum", "generator"}`` dict that checkpoints
+        written before the extra-state hooks hold."""
+        if "generator" in state_dict and "_extra_state" not in state_dict:
+            state_dict = {"_extra_state": dict(state_dict)}
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)

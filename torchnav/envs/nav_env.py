@@ -113,13 +113,13 @@ class NavEnv(BatchedEnv):
 
     # -- state for checkpoints and recording ------------------------------------------------
 
-    def state_dict(self) -> dict[str, Any]:
-        """Curriculum and RNG state, for checkpoints (episodes in flight are not saved)."""
-        return {"curriculum": self.curriculum.state_dict(), **super().state_dict()}
+    def get_extra_state(self) -> dict[str, Any]:
+        """Curriculum and generator state: ``env.state_dict()["_extra_state"]``."""
+        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state()}
 
-    def load_state_dict(self, sd: dict[str, Any]) -> None:
-        self.curriculum.load_state_dict(sd["curriculum"])
-        super().load_state_dict(sd)
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        self.curriculum.load_state_dict(state["curriculum"])
+        super().set_extra_state(state)
 
 
 def make_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
