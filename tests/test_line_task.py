@@ -262,3 +262,13 @@ def test_lap_evaluation_of_the_pd_follower():
     # a policy that drives off the line never completes a lap
     bad = run_line_episodes(constant([1.0, 0.0]), cfg, n_episodes=3, seed=1)
     assert bad["left_line"].all() and torch.isnan(bad["lap_time"]).all()
+
+
+def test_on_line_at_reset_is_the_noise_free_flag_of_every_step():
+    """The reset output's on_line comes from the same noise-free coverage as every step's, not from noisy readings."""
+    noisy = make_line_env("oval", num_envs=64, seed=3, sensors={"noise_std": 0.5}, reset={"lateral_noise": 0.2})
+    td = noisy.reset()
+    expected = noisy.task.on_line(noisy.state.sim.pose)
+    noisy_flag = (noisy.state.readings > noisy.cfg.sensors.threshold).any(-1)
+    assert not torch.equal(noisy_flag, expected), "the case must tell the two flags apart"
+    assert torch.equal(td["on_line"][:, 0], expected)

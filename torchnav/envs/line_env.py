@@ -83,7 +83,7 @@ class LineEnv(BatchedEnv):
         false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
         terms = {k: torch.zeros_like(s.progress) for k in self.task.term_names}
         flags = {f: false() for f in FLAG_KEYS}
-        flags["on_line"] = (s.readings > self.cfg.sensors.threshold).any(-1, keepdim=True)
+        flags["on_line"] = self.task.on_line(s.sim.pose)[:, None]  # as at every step: from noise-free coverage
         out = self._outputs(s, self.task.observe(s.history, s.sim), terms, flags)
         out.update({"done": false(), "terminated": false(), "truncated": false()})
         return out

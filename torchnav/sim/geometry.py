@@ -1,4 +1,4 @@
-"""Distances from robot discs to obstacles, and the box-edge helper shared with the lidar."""
+"""Distances from points and robot discs to obstacles, and box corners."""
 
 from __future__ import annotations
 
@@ -16,14 +16,6 @@ def box_corners(boxes: Tensor) -> Tensor:
     sy = torch.stack((hy, hy, -hy, -hy), dim=-1)
     rx, ry = rotate(sx, sy, yaw.unsqueeze(-1))
     return torch.stack((rx + cx.unsqueeze(-1), ry + cy.unsqueeze(-1)), dim=-1)
-
-
-def box_segments(boxes: Tensor, box_mask: Tensor) -> tuple[Tensor, Tensor]:
-    """The 4 edges of each box as segments: ``(B, K, 5)`` -> ``(B, 4K, 4)`` and mask ``(B, 4K)``."""
-    c = box_corners(boxes)  # (B, K, 4, 2)
-    seg = torch.cat((c, c.roll(-1, dims=-2)), dim=-1)  # (B, K, 4, 4): corner i -> corner i+1
-    b = boxes.shape[0]
-    return seg.reshape(b, -1, 4), box_mask.unsqueeze(-1).expand(*box_mask.shape, 4).reshape(b, -1)
 
 
 def segment_distance(px: Tensor, py: Tensor, seg: Tensor) -> Tensor:

@@ -49,13 +49,6 @@ def safe_sinc(u: Tensor, eps: float = 1e-4) -> Tensor:
     return torch.where(small, 1.0 - u * u / 6.0, torch.sin(u_safe) / u_safe)
 
 
-def safe_div(num: Tensor, den: Tensor, eps: float = 1e-12) -> Tensor:
-    """``num / den`` with ``den`` replaced by 1 where ``|den| <= eps`` (result there is meaningless
-    and must be masked by the caller; it is finite, and so is its gradient)."""
-    ok = den.abs() > eps
-    return num / torch.where(ok, den, torch.ones_like(den))
-
-
 def rotate(x: Tensor, y: Tensor, theta: Tensor) -> tuple[Tensor, Tensor]:
     """Rotate vectors ``(x, y)`` counter-clockwise by ``theta`` (radians); all broadcast."""
     c, s = torch.cos(theta), torch.sin(theta)

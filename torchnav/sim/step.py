@@ -81,3 +81,33 @@ def step_odometry(odom: Tensor, vel: Tensor, params: SimParams, generator: torch
         std = torch.tensor((params.odom_v_noise, params.odom_omega_noise), dtype=vel.dtype, device=vel.device)
         vel = vel + std * torch.randn(vel.shape, generator=generator, dtype=vel.dtype, device=vel.device)
     return integrate(odom, vel, params)
+
+
+def init_state(
+    pose: Tensor,
+    world: World,
+    params: SimParams,
+    vel: Tensor | None = None,
+) -> SimState:
+    """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
+    scan and clearance already computed. Odometry starts at the true pose."""
+    if pose.dim() != 2 or pose.shape[-1] != 3:
+        raise ValueError(f"pose must have shape (B, 3), got {tuple(pose.shape)}")
+    b = pose.shape[0]
+    check_world(world, b, pose.dtype, pose.device)
+    if vel is None:
+        vel = pose.new_zeros(b, 2)
+    elif vel.shape != (b, 2) or vel.dtype != pose.dtype or vel.device != pose.device:
+        raise ValueError(f"vel must be a ({b}, 2) tensor of the pose's dtype and device, got {vel.dtype} {tuple(vel.shape)} on {vel.device}")
+    clearance = disc_clearance(pose, world, params.robot_radius)
+    return SimState(
+        pose=pose,
+        vel=vel,
+        odom=pose.clone(),  # not aliased with pose (aliasing makes torch.compile specialise)
+        ranges=lidar_scan(pose, world, params.lidar),
+        clearance=clearance,
+        collided=clearance <= 0,
+        time=pose.new_zeros(b),
+        batch_size=[b],
+        device=pose.device,
+    )

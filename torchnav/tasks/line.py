@@ -104,9 +104,14 @@ class LineTask:
         """Sensor readings ``(B, K)`` (noisy with a generator) and the noise-free on-line flag ``(B,)``
         (some sensor's coverage above the threshold)."""
         d = nearest_distance(sensor_points(pose, self.sensor), self.tt.grid)
-        readings = floor_readings(d, self.half_width, self.sensor, gen)
-        on_line = (band_coverage(d, self.half_width, self.sensor.radius) > self.sensor.threshold).any(-1)
-        return readings, on_line
+        return floor_readings(d, self.half_width, self.sensor, gen), self._on_line(d)
+
+    def on_line(self, pose: Tensor) -> Tensor:
+        """``(B,)`` bool: some sensor's noise-free coverage of the line is above the threshold."""
+        return self._on_line(nearest_distance(sensor_points(pose, self.sensor), self.tt.grid))
+
+    def _on_line(self, d: Tensor) -> Tensor:
+        return (band_coverage(d, self.half_width, self.sensor.radius) > self.sensor.threshold).any(-1)
 
     def observe(self, history: Tensor, sim: SimState) -> Tensor:
         """Observation ``(B, H*K [+1])``: the sensor history, oldest frame first, each frame in sensor
