@@ -1,11 +1,19 @@
 """What NavEnv and LineEnv share: the batch, the explicit generator, the action and done
-specs, the NaN-action check, the current task state and the generator's checkpoint state."""
+specs, the NaN-action check, resets and steps around a pure task, the current task state
+and the generator's checkpoint state.
+
+A task env subclasses :class:`BatchedEnv` and fills in four hooks: ``_new_state(mask)``
+(fresh episodes everywhere, or where ``mask`` is True), ``_reset_view(state)`` (the
+observation and outcome flags right after a reset), ``_after_step(out)`` (bookkeeping
+such as a curriculum) and ``_outputs(state, obs, terms, flags)`` (the output TensorDict).
+"""
 
 from __future__ import annotations
 
 from typing import Any
 
 import torch
+from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 from torchrl.envs import EnvBase
 
@@ -49,6 +57,44 @@ class BatchedEnv(EnvBase):
                 "fix the policy, or pass check_actions=False to let the simulator treat them as a stop command"
             )
         return action
+
+    # -- TorchRL hooks: one reset and one step for every task ------------------------------
+
+    flag_keys: tuple[str, ...] = ()  # the task's outcome flags, each (B, 1) bool in every output
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        # Out of place: the previous step's outputs share storage with the old state.
+        self._state = self._new_state(None if self._state is None or mask is None else mask.reshape(-1))
+        s = self._state
+        # Separate tensors per key: TorchRL may write into them in place, so they must not alias.
+        false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
+        obs, flags = self._reset_view(s)
+        terms = {k: torch.zeros(self.batch_size, dtype=obs.dtype, device=self.device) for k in self.task.term_names}
+        out = self._outputs(s, obs, terms, {f: flags[f] if f in flags else false() for f in self.flag_keys})
+        out.update({"done": false(), "terminated": false(), "truncated": false()})
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = self._checked_action(tensordict)
+        self._state, out = self.task.step(self._state, action, self._generator)
+        self._after_step(out)
+        terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
+        td = self._outputs(self._state, out["observation"], out["terms"], {f: out[f][:, None] for f in self.flag_keys})
+        td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
+        return td
+
+    def _new_state(self, mask: torch.Tensor | None) -> Any:
+        raise NotImplementedError
+
+    def _reset_view(self, state: Any) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        raise NotImplementedError
+
+    def _after_step(self, out: dict[str, torch.Tensor]) -> None:
+        pass
+
+    def _outputs(self, state: Any, obs: torch.Tensor, terms: dict[str, torch.Tensor], flags: dict[str, torch.Tensor]) -> TensorDict:
+        raise NotImplementedError
 
     def _set_seed(self, seed: int | None) -> None:
         self._generator.manual_seed(0 if seed is None else int(seed))

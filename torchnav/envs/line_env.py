@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDict
 from torchrl.data import Bounded, Composite, Unbounded
 
 from ..config import merge, to_dict
@@ -70,31 +70,16 @@ class LineEnv(BatchedEnv):
         )
         self._make_action_done_specs(self.cfg.action)
 
-    # -- TorchRL hooks --------------------------------------------------------------------
+    # -- the task hooks of BatchedEnv ---------------------------------------------------------
 
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
-        mask = None if tensordict is None else tensordict.get("_reset", None)
-        if self._state is None or mask is None:
-            self._state = self.task.initial_state(self._generator)
-        else:
-            # Out of place: the previous step's outputs share storage with the old state.
-            self._state = self.task.reset(self._state, mask.reshape(-1), self._generator)
-        s = self._state
-        false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
-        terms = {k: torch.zeros_like(s.progress) for k in self.task.term_names}
-        flags = {f: false() for f in FLAG_KEYS}
-        flags["on_line"] = self.task.on_line(s.sim.pose)[:, None]  # as at every step: from noise-free coverage
-        out = self._outputs(s, self.task.observe(s.history, s.sim), terms, flags)
-        out.update({"done": false(), "terminated": false(), "truncated": false()})
-        return out
+    flag_keys = FLAG_KEYS
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = self._checked_action(tensordict)
-        self._state, out = self.task.step(self._state, action, self._generator)
-        terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
-        td = self._outputs(self._state, out["observation"], out["terms"], {f: out[f][:, None] for f in FLAG_KEYS})
-        td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
-        return td
+    def _new_state(self, mask: torch.Tensor | None) -> LineState:
+        return self.task.initial_state(self._generator) if mask is None else self.task.reset(self._state, mask, self._generator)
+
+    def _reset_view(self, s: LineState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        # on_line as at every step: from the noise-free coverage, not from the noisy readings
+        return self.task.observe(s.history, s.sim), {"on_line": self.task.on_line(s.sim.pose)[:, None]}
 
     def _outputs(self, s: LineState, obs, terms, flags) -> TensorDict:
         b = self.batch_size

@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDict
 from torchrl.data import Bounded, Composite, Unbounded
 
 from ..config import merge, to_dict
@@ -63,36 +63,27 @@ class NavEnv(BatchedEnv):
         )
         self._make_action_done_specs(self.cfg.action)
 
-    # -- TorchRL hooks ------------------------------------------------------------------
+    # -- the task hooks of BatchedEnv ---------------------------------------------------------
 
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
-        mask = None if tensordict is None else tensordict.get("_reset", None)
-        if self._state is None or mask is None:
-            self._state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
+    flag_keys = ("success", "collision")
+
+    def _new_state(self, mask: torch.Tensor | None) -> NavState:
+        if mask is None:
+            state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
         else:
-            # Out of place: the previous step's outputs share storage with the old state.
-            self._state, self.curriculum = self.task.reset(self._state, mask.reshape(-1), self.curriculum, self._generator)
-        s = self._state
-        # Separate tensors per key: TorchRL may write into them in place, so they must not alias.
-        false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
-        terms = {k: torch.zeros_like(s.goal_dist) for k in self.task.term_names}
-        out = self._outputs(s, s.history.reshape(self.num_envs, -1), terms, false(), false())
-        out.update({"done": false(), "terminated": false(), "truncated": false()})
-        return out
+            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator)
+        return state
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = self._checked_action(tensordict)
-        self._state, out = self.task.step(self._state, action, self._generator)
-        terminated, truncated = out["terminated"][:, None], out["truncated"][:, None]
-        done = (terminated | truncated)[:, 0]
+    def _reset_view(self, s: NavState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        return s.history.reshape(self.num_envs, -1), {}
+
+    def _after_step(self, out: dict[str, torch.Tensor]) -> None:
+        done = out["terminated"] | out["truncated"]
         self.curriculum = after_episodes(self.curriculum, self.cfg.curriculum, done, out["success"])
         self.curriculum = after_family_episodes(self.curriculum, self.cfg.worlds, done, out["success"], self._state.family,
                                                 self._state.difficulty)
-        td = self._outputs(self._state, out["observation"], out["terms"], out["success"][:, None], out["collision"][:, None])
-        td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
-        return td
 
-    def _outputs(self, s: NavState, obs, terms, success, collision) -> TensorDict:
+    def _outputs(self, s: NavState, obs, terms, flags) -> TensorDict:
         b = self.batch_size
         col = lambda x: x.reshape(*b, 1)  # noqa: E731
         episode = {
@@ -103,7 +94,7 @@ class NavEnv(BatchedEnv):
         return TensorDict(
             {
                 "observation": obs, "pose": s.sim.pose, "goal": s.goal, "ranges": s.sim.ranges,
-                "success": success, "collision": collision,
+                **flags,
                 "curriculum_radius": self.curriculum.radius.expand(*b).reshape(*b, 1).clone(),
                 "reward_terms": {k: col(v) for k, v in terms.items()},
                 "episode": episode,

@@ -20,6 +20,7 @@ from ..sim import SimState, init_state, make_world
 from ..sim import step as sim_step
 from ..sim.floor import band_coverage, floor_readings, nearest_distance, sensor_points
 from ..tracks import load_track, path_pose, project_on_path, wrap_delta
+from .base import BatchedTask
 from .line_config import LineConfig
 
 
@@ -56,16 +57,11 @@ class LineState:
     ep_terms: Tensor
 
 
-class LineTask:
+class LineTask(BatchedTask):
     """Configured line-following task for ``num_envs`` envs on ``device``."""
 
     def __init__(self, cfg: LineConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.cfg = cfg
-        self.num_envs = num_envs
-        self.device = torch.device(device)
-        self.dtype = dtype
+        super().__init__(cfg, num_envs, device, dtype)
         self.track = load_track(cfg.track)
         self.params = cfg.sim_params()
         self.sensor = cfg.sensor_params()

@@ -18,6 +18,7 @@ from ..maps.free_space import check_room
 from ..sim import SimState, World, init_state, pad_world, safe_hypot, sectorize, wrap_angle
 from ..worlds import mix_worlds, slot_counts
 from ..sim import step as sim_step
+from .base import BatchedTask
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
 from .rewards import resolve_weights, reward_terms
@@ -54,16 +55,11 @@ class NavState:
     difficulty: Tensor
 
 
-class NavTask:
+class NavTask(BatchedTask):
     """Configured navigation task for ``num_envs`` envs on ``device``."""
 
     def __init__(self, cfg: NavConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.cfg = cfg
-        self.num_envs = num_envs
-        self.device = torch.device(device)
-        self.dtype = dtype
+        super().__init__(cfg, num_envs, device, dtype)
         self.families = tuple(cfg.worlds.families)  # procedural worlds instead of the map when non-empty
         self.spec = None if self.families else load_map(cfg.map)  # the map; None with procedural worlds
         if self.spec is not None:  # a map with no room for a start or a goal is refused before any episode
