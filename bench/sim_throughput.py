@@ -46,8 +46,6 @@ from torchnav.sim import (  # noqa: E402
     SimState,
     World,
     apply_limits,
-    check_action,
-    check_world,
     disc_clearance,
     init_state,
     integrate,
@@ -120,34 +118,12 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
 # -- step functions --------------------------------------------------------------------------------
 
 
-def staged_step(state: SimState, action: torch.Tensor, world: World, params: SimParams, unroll: bool | None) -> SimState:
-    """``torchnav.sim.step`` (twist commands, no noise) composed stage by stage, with the lidar
-    reduction chosen by ``unroll``. ``unroll=None`` reproduces ``step`` exactly (checked by ``self_check``)."""
-    check_action(action, state)  # the same input checks as step, so per-call overheads compare fairly
-    check_world(world, state.pose.shape[0], state.pose.dtype, state.pose.device)
-    vel = apply_limits(action, state.vel, params)
-    pose = integrate(state.pose, vel, params)
-    odom = step_odometry(state.odom, vel, params, None)
-    clearance = disc_clearance(pose, world, params.robot_radius)
-    return SimState(
-        pose=pose,
-        vel=vel,
-        odom=odom,
-        ranges=lidar_scan(pose, world, params.lidar, None, unroll=unroll),
-        clearance=clearance,
-        collided=clearance <= 0,
-        time=state.time + params.dt,
-        batch_size=state.batch_size,
-        device=state.device,
-    )
-
-
 def step_fn(mode: str, params: SimParams, dynamic: bool) -> Callable[[SimState, torch.Tensor, World], SimState]:
     batched = mode.endswith("-batched")
 
     def fn(state: SimState, action: torch.Tensor, world: World) -> SimState:
         if batched:
-            return staged_step(state, action, world, params, unroll=False)
+            return step(state, action, world, params, unroll=False)
         return step(state, action, world, params)
 
     if mode.startswith("eager"):
@@ -158,14 +134,11 @@ def step_fn(mode: str, params: SimParams, dynamic: bool) -> Callable[[SimState, 
 
 
 def self_check(device: str) -> None:
-    """The composed stages match ``step`` (unroll=None) and the batched lidar matches the unrolled one."""
+    """The batched lidar reduction matches the unrolled one."""
     params = bench_params()
     state, world, actions = make_load(33, device, seed=1)
-    ref = step(state, actions[0], world, params)
-    same = staged_step(state, actions[0], world, params, unroll=None)
-    for k in ("pose", "vel", "odom", "ranges", "clearance", "collided", "time"):
-        torch.testing.assert_close(getattr(same, k), getattr(ref, k), rtol=0, atol=0, msg=f"staged_step differs from step in {k}")
-    batched = staged_step(state, actions[0], world, params, unroll=False)
+    ref = step(state, actions[0], world, params, unroll=True)
+    batched = step(state, actions[0], world, params, unroll=False)
     torch.testing.assert_close(batched.ranges, ref.ranges, rtol=1e-5, atol=1e-5)
 
 

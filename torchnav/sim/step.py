@@ -40,6 +40,7 @@ def step(
     *,
     wheel_speeds: bool = False,
     generator: torch.Generator | None = None,
+    unroll: bool | None = None,
 ) -> SimState:
     """Advance every env by ``params.dt``.
 
@@ -51,6 +52,9 @@ def step(
         world: obstacles, batch ``B``.
         params: robot, integrator and lidar parameters.
         generator: source of odometry and lidar noise; without one the step is noise-free.
+        unroll: the lidar's every-ray reduction (``raycast.py``): a running minimum over
+            obstacle slots (True), one ``(B, R, N)`` minimum (False), or chosen by the slot
+            count (None, the default); the result is the same up to rounding.
     Returns:
         The new state; ``state`` is left untouched.
     """
@@ -66,7 +70,7 @@ def step(
         pose=pose,
         vel=vel,
         odom=odom,
-        ranges=lidar_scan(pose, world, params.lidar, generator),
+        ranges=lidar_scan(pose, world, params.lidar, generator, unroll=unroll),
         clearance=clearance,
         collided=clearance <= 0,
         time=state.time + params.dt,
