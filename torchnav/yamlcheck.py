@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import re
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -187,3 +189,29 @@ def check_grey_level(ctx: Ctx, v: Any, key: str) -> float:
     if not is_number(v) or not 0 < v < 1:
         raise ctx.fail(key, f"expected a grey level in (0, 1), got {show(v)}")
     return float(v)
+
+
+def shipped_names(folder: Any) -> list[str]:
+    """Stems of the ``*.yaml`` files of a package data folder (an ``importlib.resources`` traversable)."""
+    return sorted(p.name[: -len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
+def read_named(name_or_path: Any, shipped: Any, kind: str, error: type[Exception]) -> tuple[str, str, str, Any]:
+    """The text of a shipped ``kind`` file by name (``"arena"``) or of any file by path: ``(text,
+    source, default name, folder for relative paths)``. A string is a path when it contains a path
+    separator or ends in ``.yaml``/``.yml``. A missing or unreadable file raises ``error``."""
+    s = str(name_or_path)
+    if isinstance(name_or_path, os.PathLike) or "/" in s or os.sep in s or s.endswith((".yaml", ".yml")):
+        path = Path(name_or_path)
+        try:
+            return path.read_text(encoding="utf-8"), s, path.stem, path.parent
+        except FileNotFoundError:
+            raise error(f"{s}: {kind} file not found") from None
+        except (OSError, UnicodeDecodeError) as e:
+            raise error(f"{s}: cannot read {kind} file: {e}") from None
+    if not isinstance(name_or_path, str):
+        raise error(f"load_{kind} expects a {kind} name or a path, got {show(name_or_path)}")
+    res = shipped.joinpath(s + ".yaml")
+    if not res.is_file():
+        raise error(f"unknown {kind} {s!r}; available {kind}s: {', '.join(shipped_names(shipped))} (or pass a path to a .yaml file)")
+    return res.read_text(encoding="utf-8"), str(res), s, shipped

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 
-from ..yamlcheck import Ctx, check_bool, check_count, check_mapping, check_number, check_grey_level, check_range, check_vector, load_yaml, show
+from ..yamlcheck import Ctx, check_bool, check_count, check_mapping, check_number, check_grey_level, check_range, check_vector, load_yaml, read_named, shipped_names, show
 from .occupancy import ImageError, mask_boxes, read_mask
 from .spec import MapError, MapSpec, RandomBoxes, RandomCircles
 
@@ -255,11 +255,7 @@ def _data_dir():
 
 def available_maps() -> list[str]:
     """Names of the maps shipped with torchnav (the stems of ``torchnav/maps/data/*.yaml``)."""
-    return sorted(p.name[: -len(".yaml")] for p in _data_dir().iterdir() if p.name.endswith(".yaml"))
-
-
-def _looks_like_path(s: str) -> bool:
-    return "/" in s or os.sep in s or s.endswith((".yaml", ".yml"))
+    return shipped_names(_data_dir())
 
 
 def load_map(name_or_path: str | os.PathLike) -> MapSpec:
@@ -268,22 +264,5 @@ def load_map(name_or_path: str | os.PathLike) -> MapSpec:
     A string counts as a path when it contains a path separator or ends in
     ``.yaml``/``.yml``; anything else is looked up among :func:`available_maps`.
     """
-    if isinstance(name_or_path, os.PathLike) or _looks_like_path(str(name_or_path)):
-        path = Path(name_or_path)
-        source = str(name_or_path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise MapError(f"{source}: map file not found") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise MapError(f"{source}: cannot read map file: {e}") from None
-        return _parse_text(text, source, path.stem, path.parent)
-    if not isinstance(name_or_path, str):
-        raise MapError(f"load_map expects a map name or a path, got {show(name_or_path)}")
-    res = _data_dir().joinpath(name_or_path + ".yaml")
-    if not res.is_file():
-        raise MapError(
-            f"unknown map {name_or_path!r}; available maps: {', '.join(available_maps())} "
-            "(or pass a path to a .yaml file)"
-        )
-    return _parse_text(res.read_text(encoding="utf-8"), str(res), name_or_path, _data_dir())
+    text, source, name, base_dir = read_named(name_or_path, _data_dir(), "map", MapError)
+    return _parse_text(text, source, name, base_dir)

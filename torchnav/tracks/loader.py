@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..maps.occupancy import ImageError, read_mask
-from ..yamlcheck import Ctx, check_bool, check_grey_level, check_mapping, check_number, check_vector, is_number, load_yaml, show
+from ..yamlcheck import Ctx, check_bool, check_grey_level, check_mapping, check_number, check_vector, is_number, load_yaml, read_named, shipped_names, show
 from .geometry import CurveError, catmull_rom, fillet_polyline, resample
 from .png import track_from_mask
 from .track import Track, TrackError
@@ -158,7 +158,7 @@ def _data_dir():
 
 def available_tracks() -> list[str]:
     """Names of the tracks shipped with torchnav (stems of ``torchnav/tracks/data/*.yaml``)."""
-    return sorted(p.name[: -len(".yaml")] for p in _data_dir().iterdir() if p.name.endswith(".yaml"))
+    return shipped_names(_data_dir())
 
 
 def load_track(name_or_path: str | os.PathLike) -> Track:
@@ -166,17 +166,5 @@ def load_track(name_or_path: str | os.PathLike) -> Track:
 
     A string counts as a path when it contains a path separator or ends in ``.yaml``/``.yml``.
     """
-    s = str(name_or_path)
-    if isinstance(name_or_path, os.PathLike) or "/" in s or os.sep in s or s.endswith((".yaml", ".yml")):
-        path = Path(name_or_path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise TrackError(f"{s}: track file not found") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise TrackError(f"{s}: cannot read track file: {e}") from None
-        return _parse_text(text, s, path.stem, path.parent)
-    res = _data_dir().joinpath(s + ".yaml")
-    if not res.is_file():
-        raise TrackError(f"unknown track {s!r}; available tracks: {', '.join(available_tracks())} (or pass a path to a .yaml file)")
-    return _parse_text(res.read_text(encoding="utf-8"), str(res), s, None)
+    text, source, name, base_dir = read_named(name_or_path, _data_dir(), "track", TrackError)
+    return _parse_text(text, source, name, base_dir)
