@@ -427,8 +427,19 @@ def config_dict(cfg: DictConfig) -> dict[str, Any]:
     return OmegaConf.to_container(cfg, resolve=True)  # type: ignore[return-value]
 
 
+def main_guard(main: Callable[[list[str]], Any]) -> None:
+    """Run ``main(sys.argv[1:])`` for a command-line tool: bad input (a config, map, track or
+    checkpoint error, a missing file, any ValueError naming what is wrong) becomes one line on
+    stderr and exit code 2 instead of a traceback."""
+    try:
+        main(sys.argv[1:])
+    except (ConfigError, FileNotFoundError, ValueError) as e:  # MapError, TrackError, CheckpointError are ValueErrors
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
+
+
 __all__ = [
-    "parse_cli", "load_config", "resumed_config", "nav_config", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
+    "main_guard", "parse_cli", "load_config", "resumed_config", "nav_config", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
     "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume_dir", "StopFlag", "ThreadGovernor", "write_json",
     "config_dict", "to_dict",
 ]

@@ -374,16 +374,3 @@ def replay_update(trainer: Trainer, buffer, step_fn) -> Callable[[TensorDictBase
         return out
 
     return update
-
-
-def main_guard(main: Callable[[list[str]], Any]) -> None:
-    """Run ``main(sys.argv[1:])``, turning configuration, map, track, checkpoint and missing-file errors into one line and exit code 2."""
-    from torchnav.checkpoint import CheckpointError
-    from torchnav.maps import MapError
-    from torchnav.tracks import TrackError
-
-    try:
-        main(sys.argv[1:])
-    except (C.ConfigError, MapError, TrackError, CheckpointError, FileNotFoundError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)

@@ -49,7 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 from compare import _pct, evaluate_method, load_methods, method_configs  # noqa: E402
 
-from torchnav.config import ConfigError, to_dict  # noqa: E402
+from torchnav.config import to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, PlannerController  # noqa: E402
 from torchnav.evaluation import eval_config  # noqa: E402
 from torchnav.maps import available_maps  # noqa: E402
@@ -260,8 +260,4 @@ def main(argv: list[str]) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    try:
-        main(sys.argv[1:])
-    except (ConfigError, FileNotFoundError, RuntimeError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
+    C.main_guard(main)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -32,7 +31,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 import _common as C
 
-from torchnav.config import ConfigError, to_dict
+from torchnav.config import to_dict
 from torchnav.controllers import CONTROLLERS, make_controller
 from torchnav.envs import NavEnv
 from torchnav.evaluation import bind_policy, eval_config, run_episodes, summarize
@@ -255,8 +254,4 @@ def main(argv: list[str]) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    try:
-        main(sys.argv[1:])
-    except (ConfigError, FileNotFoundError, RuntimeError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
+    C.main_guard(main)

@@ -36,7 +36,7 @@ def load_actor(path: Path):
     """Deterministic navigation policy and the NavConfig it was trained with, from ``actor.pt`` or ``checkpoint.pt``."""
     sp = load_policy(path)
     if sp.task != "nav":
-        raise RuntimeError(f"{path}: a {sp.task!r} policy, not a navigation policy")
+        raise ValueError(f"{path}: a {sp.task!r} policy, not a navigation policy")
     return sp.policy, sp.config()
 
 
@@ -104,8 +104,4 @@ def main(argv: list[str]) -> dict:
 
 
 if __name__ == "__main__":
-    try:
-        main(sys.argv[1:])
-    except (C.ConfigError, FileNotFoundError, RuntimeError, ValueError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        sys.exit(2)
+    C.main_guard(main)

@@ -27,7 +27,8 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _train import NavAdapter, Trainer, main_guard  # noqa: E402
+import _common as C  # noqa: E402
+from _train import NavAdapter, Trainer  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -113,4 +114,4 @@ def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -
 
 
 if __name__ == "__main__":
-    main_guard(main)
+    C.main_guard(main)

@@ -17,7 +17,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ppo_lidar  # noqa: E402
-from _train import LineAdapter, main_guard  # noqa: E402
+import _common as C  # noqa: E402
+from _train import LineAdapter  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
@@ -25,4 +26,4 @@ def main(argv: list[str]) -> dict:
 
 
 if __name__ == "__main__":
-    main_guard(main)
+    C.main_guard(main)

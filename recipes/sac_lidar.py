@@ -26,7 +26,8 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _train import Trainer, main_guard, replay_update  # noqa: E402
+import _common as C  # noqa: E402
+from _train import Trainer, replay_update  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -87,4 +88,4 @@ def main(argv: list[str]) -> dict:
 
 
 if __name__ == "__main__":
-    main_guard(main)
+    C.main_guard(main)

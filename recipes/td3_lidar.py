@@ -30,7 +30,8 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import MLP, AdditiveGaussianModule
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _train import Trainer, main_guard, replay_update  # noqa: E402
+import _common as C  # noqa: E402
+from _train import Trainer, replay_update  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -116,4 +117,4 @@ def main(argv: list[str]) -> dict:
 
 
 if __name__ == "__main__":
-    main_guard(main)
+    C.main_guard(main)
