@@ -26,8 +26,20 @@ import _common as C
 from torchnav.config import merge
 
 from torchnav.envs import NavEnv
-from torchnav.evaluation import bind_policy, eval_config, format_summary, record_episodes, run_episodes, summarize
+from torchnav.evaluation import bind_policy, eval_config, format_summary, run_episodes, summarize
+from torchnav.record import EpisodeRecorder, record_rollout
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchnav.policy import Actor, policy_payload, save_policy, to_policy
+
+
+def record_episodes_with(task, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any]) -> Any:
+    """One deterministic episode per env of ``task.eval_env(episodes, ...)``, written by
+    ``make_recorder(env)`` (an ``EpisodeRecorder`` to an MCAP file, or a ``LiveView``)."""
+    env = task.eval_env(episodes, device, seed)
+    bind_policy(policy, env)
+    with make_recorder(env) as rec, set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        record_rollout(env, policy, max_steps=env.cfg.max_steps, recorder=rec, stack=False)
+    return rec
 
 
 class NavAdapter:
@@ -68,8 +80,12 @@ class NavAdapter:
     def format(self, s: dict[str, Any], title: str | None = None) -> str:
         return format_summary(s, title=title or f"final evaluation on {self.where()}, goals anywhere, deterministic policy")
 
+    def eval_env(self, num_envs: int, device, seed: int) -> NavEnv:
+        return NavEnv(self.eval_config, num_envs=num_envs, device=device, seed=seed)
+
     def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
-        return record_episodes(policy, self.eval_config, path, episodes, seed=seed, device=device, metadata=metadata)
+        return record_episodes_with(self, policy, episodes, seed, device, lambda env: EpisodeRecorder(
+            path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1))
 
     def status(self, env) -> str:
         if self.config.worlds.families:
@@ -132,16 +148,12 @@ class LineAdapter:
 
         return format_lap_summary(s, title=title or f"final evaluation on {self.config.track}: {self.laps} lap(s) from random starts, deterministic policy")
 
-    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
-        from torchnav.record import EpisodeRecorder, record_rollout
-        from torchrl.envs.utils import ExplorationType, set_exploration_type
+    def eval_env(self, num_envs: int, device, seed: int):
+        return self.make_env(num_envs, device, seed)
 
-        env = self.make_env(episodes, device, seed)
-        bind_policy(policy, env)
-        with EpisodeRecorder(path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1) as rec:
-            with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-                record_rollout(env, policy, max_steps=self.config.max_steps, recorder=rec, stack=False)
-        return rec
+    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
+        return record_episodes_with(self, policy, episodes, seed, device, lambda env: EpisodeRecorder(
+            path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1))
 
     def status(self, env) -> str:
         return ""

@@ -61,10 +61,17 @@ def main(argv: list[str]) -> dict:
     p.add_argument("--json", default=None, help="write the results as JSON to this path")
     p.add_argument("--record", type=int, default=0, help="write this many episodes to an MCAP file")
     p.add_argument("--record-path", default=None, help="MCAP path (default: eval_episodes.mcap beside a run's checkpoint, else runs/eval/<checkpoint>_<map>.mcap)")
+    p.add_argument("--live", type=int, default=None, metavar="PORT",
+                   help="after evaluating, stream --live-episodes episodes to the Foxglove app over a WebSocket server on PORT "
+                        "(Foxglove: Open connection -> Foxglove WebSocket -> ws://localhost:PORT)")
+    p.add_argument("--live-episodes", type=int, default=4, help="episodes streamed with --live (default 4, side by side)")
+    p.add_argument("--realtime", type=float, default=1.0, help="--live pace: simulated seconds per wall-clock second (default 1)")
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="task overrides, e.g. max_steps=300 reward.preset=shaped")
     a = p.parse_args(argv)
     if a.episodes < 1:
         p.error("--episodes must be >= 1")
+    if a.live is not None and not (0 <= a.live <= 65535 and a.live_episodes >= 1 and a.realtime > 0):
+        p.error("--live needs a port in [0, 65535], --live-episodes >= 1 and --realtime > 0")
     C.ThreadGovernor(a.threads)
     ckpt = Path(a.checkpoint)
     sp = load_policy(ckpt)
@@ -100,6 +107,18 @@ def main(argv: list[str]) -> dict:
         path = Path(a.record_path) if a.record_path else default_record_path(ckpt, where)
         rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where})
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
+    if a.live is not None:
+        from _train import record_episodes_with
+
+        from torchnav.record import LiveView
+
+        def live_view(env):
+            view = LiveView(env, envs=range(a.live_episodes), port=a.live, episodes=1, realtime=a.realtime)
+            print(f"live: {a.live_episodes} episodes on ws://localhost:{view.port} (Foxglove: Open connection -> Foxglove WebSocket; "
+                  "layout docs/foxglove_layout.json); Ctrl-C stops", flush=True)
+            return view
+
+        record_episodes_with(task, actor, a.live_episodes, a.seed, a.device, live_view)
     return out
 
 

@@ -8,11 +8,12 @@ See docs/foxglove.md for the topics and ``python -m torchnav.record.replay`` to
 summarise or animate a recording without Foxglove.
 """
 
+from .live import LiveView
 from .mcap_writer import EpisodeRecorder, RecordingWarning, record_rollout
 from .reader import Episode, JsonDecoderFactory, Recording, read_recording
 from .schemas import foxglove_schema, validate
 
 __all__ = [
-    "EpisodeRecorder", "RecordingWarning", "record_rollout", "read_recording", "Recording", "Episode",
+    "EpisodeRecorder", "LiveView", "RecordingWarning", "record_rollout", "read_recording", "Recording", "Episode",
     "JsonDecoderFactory", "foxglove_schema", "validate",
 ]

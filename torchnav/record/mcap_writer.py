@@ -173,6 +173,17 @@ class EpisodeRecorder:
 
     # -- file ------------------------------------------------------------------------------
 
+    TOPICS = ("tf", "scan", "scene", "odom", "odom_estimate", "action", "reward", "events")  # /env<i>/<topic>
+
+    def schemas(self) -> dict[str, dict]:
+        """The JSON Schema of each kind of message (``odom_estimate`` uses ``odom``'s)."""
+        return {
+            "tf": foxglove_schema("FrameTransforms"), "scan": foxglove_schema("LaserScan"),
+            "scene": foxglove_schema("SceneUpdate"), "odom": foxglove_schema("Odometry"),
+            "action": action_schema(self.env.action_spec.shape[-1]), "reward": reward_schema(self.term_names),
+            "events": event_schema(),
+        }
+
     def _open(self, metadata: Mapping[str, Any]) -> None:
         from mcap.writer import CompressionType, Writer
 
@@ -180,17 +191,11 @@ class EpisodeRecorder:
         self._file = open(self.path, "wb")
         self._writer = Writer(self._file, compression=CompressionType.ZSTD, chunk_size=1 << 20)
         self._writer.start(profile="", library=f"torchnav {_version()}")
-        schemas = {
-            "tf": foxglove_schema("FrameTransforms"), "scan": foxglove_schema("LaserScan"),
-            "scene": foxglove_schema("SceneUpdate"), "odom": foxglove_schema("Odometry"),
-            "action": action_schema(self.env.action_spec.shape[-1]), "reward": reward_schema(self.term_names),
-            "events": event_schema(),
-        }
-        sid = {k: self._writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode()) for k, s in schemas.items()}
+        sid = {k: self._writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode()) for k, s in self.schemas().items()}
         for st in self.streams:
             st.channels = {
                 name: self._writer.register_channel(f"/env{st.env}/{name}", "json", sid["odom" if name == "odom_estimate" else name])
-                for name in ("tf", "scan", "scene", "odom", "odom_estimate", "action", "reward", "events")
+                for name in self.TOPICS
             }
         self._writer.add_metadata("torchnav", self._metadata(metadata))
         self._flush_file()
