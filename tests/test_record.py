@@ -121,8 +121,8 @@ def test_episode_world_is_recorded(recorded):
     assert len(starts) >= 2
     spec_boxes = env.task.spec.random_boxes.count if env.task.spec.random_boxes else 0
     for s in starts:
-        assert len(s["world"]["segments"]) >= 4 and not s["world"]["fixed_only"]
-        assert len(s["world"]["boxes"]) <= spec_boxes + len(env.task.spec.boxes)
+        assert len(s["world"]["segments"]) >= 4 * 4 and not s["world"]["fixed_only"]  # flat rows of 4
+        assert len(s["world"]["boxes"]) <= 5 * (spec_boxes + len(env.task.spec.boxes))
     if spec_boxes:
         assert starts[0]["world"]["boxes"] != starts[1]["world"]["boxes"]  # re-placed at reset
 
@@ -244,3 +244,39 @@ def test_render_batch_trajectories_and_learning_curves(recorded, tmp_path):
     fig.savefig(tmp_path / "curves.png")
     with pytest.raises(FileNotFoundError):
         plot_learning_curves(tmp_path / "empty")
+
+
+def _arrays_of_arrays(schema, path="$"):
+    """Paths in a JSON schema where an array's items are arrays (Foxglove's and Lichtblick's parsers reject them)."""
+    found = []
+    if isinstance(schema, dict):
+        items = schema.get("items")
+        if schema.get("type") == "array" and isinstance(items, dict) and items.get("type") == "array":
+            found.append(path)
+        for k, v in schema.items():
+            found += _arrays_of_arrays(v, f"{path}.{k}")
+    elif isinstance(schema, list):
+        for i, v in enumerate(schema):
+            found += _arrays_of_arrays(v, f"{path}[{i}]")
+    return found
+
+
+def test_every_recorded_schema_is_one_foxglove_can_parse(tmp_path):
+    """No channel's JSON schema nests arrays in arrays, and the events' worlds are flat rows."""
+    from mcap.reader import make_reader
+
+    from torchnav.envs import make_env
+    from torchnav.record import EpisodeRecorder, read_recording, record_rollout
+
+    env = make_env("arena", num_envs=2, max_steps=10)
+    path = tmp_path / "e.mcap"
+    with EpisodeRecorder(path, env, envs=(0, 1), episodes=1) as rec:
+        record_rollout(env, None, max_steps=10, recorder=rec)
+    with open(path, "rb") as f:
+        schemas = {s.name: json.loads(s.data) for s in make_reader(f).get_summary().schemas.values()}
+    assert len(schemas) >= 7
+    for name, schema in schemas.items():
+        assert not _arrays_of_arrays(schema), f"{name}: arrays of arrays at {_arrays_of_arrays(schema)}"
+    start = next(ep for ep in read_recording(path).episodes()).start
+    world = start["world"]
+    assert all(isinstance(x, float) for x in world["segments"]) and len(world["segments"]) % 4 == 0 and len(world["boxes"]) % 5 == 0

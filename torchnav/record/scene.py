@@ -19,7 +19,7 @@ ROBOT_HEIGHT = 0.25  # m
 COLORS = {
     "wall": (0.25, 0.25, 0.25, 1.0), "box": (0.55, 0.55, 0.55, 1.0), "circle": (0.55, 0.55, 0.55, 1.0),
     "goal": (0.2, 0.75, 0.3, 0.6), "robot": (0.12, 0.47, 0.71, 1.0), "trail": (0.12, 0.47, 0.71, 0.8),
-    "arrow": (0.0, 0.0, 0.0, 1.0),
+    "arrow": (0.0, 0.0, 0.0, 1.0), "estimate": (0.96, 0.62, 0.0, 1.0),
 }
 _EMPTY = {"arrows": [], "cubes": [], "spheres": [], "cylinders": [], "lines": [], "triangles": [], "texts": [], "models": []}
 
@@ -163,7 +163,8 @@ class EnvStream:
         p0 = r["pose0"]
         start = {"env": self.env, "episode": self.episode, "event": "start",
                  "start": [_f(x) for x in p0], "goal": [_f(x) for x in self.goal],
-                 "world": {"segments": seg, "circles": cir, "boxes": box, "fixed_only": fixed_only}}
+                 # rows flattened: Foxglove's and Lichtblick's JSON-schema parsers reject arrays of arrays
+                 "world": {"segments": sum(seg, []), "circles": sum(cir, []), "boxes": sum(box, []), "fixed_only": fixed_only}}
         if not self.rec.optional["goal"]:
             del start["goal"]
         self._add("events", start)
@@ -218,7 +219,12 @@ class EnvStream:
         trail = json.dumps(entity(self.t, self.frame, "trail", lines=[{
             "type": 0, "pose": pose(0.0, 0.0), "thickness": 0.04, "scale_invariant": False, "points": "@PTS@",
             "color": color("trail"), "colors": [], "indices": []}])).replace('"@PTS@"', "[" + ",".join(self.trail + [last]) + "]")
-        self._add("scene", '{"deletions":[],"entities":[' + self.static + "," + json.dumps(robot) + "," + trail + "]}")
+        extra = ""
+        if odom is not None:  # the odometry estimate as a scene arrow too: viewers without foxglove.Odometry still draw it
+            extra = "," + json.dumps(entity(self.t, self.frame, "estimate", arrows=[{
+                "pose": pose(_f(odom[0]), _f(odom[1]), _f(odom[2]), ROBOT_HEIGHT + 0.02), "shaft_length": self.radius,
+                "shaft_diameter": 0.03, "head_length": 0.08, "head_diameter": 0.08, "color": color("estimate")}]))
+        self._add("scene", '{"deletions":[],"entities":[' + self.static + "," + json.dumps(robot) + "," + trail + extra + "]}")
         lin = {"x": _f(vel[0]), "y": 0.0, "z": 0.0}
         ang = {"x": 0.0, "y": 0.0, "z": _f(vel[1])}
         zeros = [0.0] * 36

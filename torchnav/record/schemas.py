@@ -218,7 +218,9 @@ EVENT_KINDS = ("start", "success", "collision", "timeout", "terminated")
 
 
 def event_schema() -> dict:
-    arr = {"type": "array", "items": {"type": "array", "items": _NUM}}
+    def rows(width: int, what: str) -> dict:
+        return {"type": "array", "items": _NUM, "description": f"{what}, {width} numbers each, one after the other"}
+
     return {
         "title": "torchnav.EpisodeEvent",
         "description": "Start or end of an episode of one env. Start events carry the episode's world.",
@@ -234,8 +236,9 @@ def event_schema() -> dict:
             "goal": {"type": "array", "items": _NUM, "description": "goal [x m, y m]"},
             "world": {
                 "type": "object",
-                "description": "obstacles of the episode: segments [x1,y1,x2,y2], circles [cx,cy,r], boxes [cx,cy,hx,hy,yaw] (m, rad)",
-                "properties": {"segments": arr, "circles": arr, "boxes": arr, "fixed_only": {"type": "boolean"}},
+                "description": "obstacles of the episode as flat lists (m, rad)",
+                "properties": {"segments": rows(4, "walls [x1, y1, x2, y2]"), "circles": rows(3, "circles [cx, cy, r]"),
+                               "boxes": rows(5, "boxes [cx, cy, half_x, half_y, yaw]"), "fixed_only": {"type": "boolean"}},
             },
         },
         "required": ["env", "episode", "event"],
