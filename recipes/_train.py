@@ -26,10 +26,13 @@ import _common as C
 from torchnav.config import merge
 
 from torchnav.envs import NavEnv
-from torchnav.evaluation import bind_policy, eval_config, format_summary, run_episodes, summarize
+from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED, bind_policy, eval_config, format_summary, run_episodes, summarize
 from torchnav.record import EpisodeRecorder, record_rollout
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchnav.policy import Actor, policy_payload, save_policy, to_policy
+
+
+RECENT_EPISODES = 500  # training episodes behind the train/<outcome>_rate figures of the progress bar and logs
 
 
 def record_episodes_with(task, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any]) -> Any:
@@ -256,7 +259,7 @@ class Trainer:
         """Run the loop; returns True if it was stopped by a signal (a checkpoint was written either way)."""
         cfg, c, log = self.cfg, self.counters, self.logger
         meta = meta or self.policy_meta()
-        recent = collections.deque(maxlen=500)  # outcome flags of recent training episodes
+        recent = collections.deque(maxlen=RECENT_EPISODES)  # outcome flags of recent training episodes
         stop = C.StopFlag()
         bar = tqdm(total=int(cfg.train.total_frames), initial=int(c["frames"]), unit="fr", disable=not cfg.logger.progress, dynamic_ncols=True)
         last_ckpt = last_eval = c["frames"]
@@ -289,7 +292,7 @@ class Trainer:
                 if cfg.eval.interval_frames and c["frames"] - last_eval >= cfg.eval.interval_frames:
                     last_eval = c["frames"]
                     t_eval = time.perf_counter()
-                    s = self.evaluate(int(cfg.eval.episodes), 10_000 + int(cfg.seed))
+                    s = self.evaluate(int(cfg.eval.episodes), PERIODIC_EVAL_SEED + int(cfg.seed))
                     c["eval_s"] += time.perf_counter() - t_eval
                     c["wall_time"] = time.perf_counter() - t_start
                     _log_rates(log, "eval", s, c["frames"])
@@ -334,7 +337,7 @@ class Trainer:
         """Final evaluation on ``eval.final_episodes`` episodes, MCAP episodes, ``summary.json``; prints the table."""
         cfg, c = self.cfg, self.counters
         t0 = time.perf_counter()
-        summary = self.evaluate(int(cfg.eval.final_episodes), 20_000 + int(cfg.seed))
+        summary = self.evaluate(int(cfg.eval.final_episodes), FINAL_EVAL_SEED + int(cfg.seed))
         result = {
             "run_dir": str(self.run), **self.task.info(), "frames": c["frames"], "updates": c["updates"],
             "train_wall_s": c["wall_time"], "time_to_target_s": c["time_to_target"],
@@ -346,7 +349,7 @@ class Trainer:
         _log_rates(self.logger, "final", summary, c["frames"])
         if cfg.eval.record_episodes:
             rec = self.task.record(to_policy(self.export_actor()), self.run / "episodes.mcap", int(cfg.eval.record_episodes),
-                                   20_000 + int(cfg.seed), self.device,
+                                   FINAL_EVAL_SEED + int(cfg.seed), self.device,
                                    {"checkpoint": str(self.run / "actor.pt"), "config": C.config_dict(cfg)})
             result["episodes_mcap"] = None if rec.error else str(self.run / "episodes.mcap")
         C.write_json(self.run / "summary.json", result)

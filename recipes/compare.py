@@ -34,7 +34,7 @@ import _common as C
 from torchnav.config import to_dict
 from torchnav.controllers import CONTROLLERS, make_controller
 from torchnav.envs import NavEnv
-from torchnav.evaluation import bind_policy, eval_config, run_episodes, summarize
+from torchnav.evaluation import FINAL_EVAL_SEED, bind_policy, eval_config, run_episodes, summarize
 from torchnav.maps import MapError, load_map
 from torchnav.policy import load_policy
 from torchnav.tasks import NavConfig
@@ -203,7 +203,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     p.add_argument("checkpoints", nargs="*", help="actor.pt / checkpoint.pt files of navigation policies")
     p.add_argument("--maps", nargs="+", default=list(DEFAULT_MAPS), help=f"maps (default: {' '.join(DEFAULT_MAPS)})")
     p.add_argument("--episodes", type=int, default=1000, help="episodes per method and map (default 1000)")
-    p.add_argument("--seed", type=int, default=20_000, help="scenario seed (default 20000, as recipes/evaluate.py)")
+    p.add_argument("--seed", type=int, default=FINAL_EVAL_SEED, help="scenario seed (default 20000, as recipes/evaluate.py)")
     p.add_argument("--controllers", nargs="*", default=None, help=f"controllers (default all: {' '.join(CONTROLLERS)}; none: --controllers)")
     p.add_argument("--scenarios", type=int, default=3, help="scenarios per map drawn in trajectories.png (default 3; 0: no picture)")
     p.add_argument("--out", default="runs/compare", help="output directory (default runs/compare)")

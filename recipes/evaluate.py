@@ -26,6 +26,7 @@ import _common as C  # noqa: E402
 from _train import LineAdapter, NavAdapter  # noqa: E402
 
 from torchnav.config import merge  # noqa: E402
+from torchnav.evaluation import FINAL_EVAL_SEED  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
 from torchnav.tasks import LineConfig, NavConfig  # noqa: E402
 
@@ -54,7 +55,7 @@ def main(argv: list[str]) -> dict:
     p.add_argument("--map", "--track", dest="map", default=None, help="map (navigation) or track (line following) name or YAML path (default: the one it was trained on)")
     p.add_argument("--laps", type=int, default=1, help="line following: laps an episode must complete to succeed (default 1)")
     p.add_argument("--episodes", type=int, default=1000, help="number of episodes (default 1000)")
-    p.add_argument("--seed", type=int, default=20_000, help="scenario seed (default 20000)")
+    p.add_argument("--seed", type=int, default=FINAL_EVAL_SEED, help="scenario seed (default 20000)")
     p.add_argument("--curriculum", action="store_true", help="keep the training curriculum's goal radius instead of goals anywhere")
     p.add_argument("--device", default="cpu")
     p.add_argument("--threads", type=C.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")

@@ -20,6 +20,11 @@ from .envs import NavEnv
 from .tasks import NavConfig
 
 Z95 = 1.959964
+# Scenario seeds, offset by a run's seed: training envs use the run's seed itself, periodic
+# evaluation PERIODIC_EVAL_SEED + seed, the final evaluation and evaluate.py FINAL_EVAL_SEED + seed
+# (recipes/benchmark.py's test worlds start at 1,000,000). Disjoint for seeds below 10,000.
+PERIODIC_EVAL_SEED = 10_000
+FINAL_EVAL_SEED = 20_000
 
 
 def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
