@@ -1,7 +1,7 @@
 """Offline checks of a map's free space, in numpy: distance field and connectivity.
 
-Not used by the simulator (which has its own differentiable geometry in
-``torchnav.sim``); this is for map authors and tests: "can a robot of radius r
+Built on the simulator's geometry (``torchnav.sim.points_clearance``, in float64);
+this is for map authors, planners and tests: "can a robot of radius r
 get from anywhere to anywhere in this map?", and for placing illustrative
 objects in pictures. Only the fixed obstacles of a :class:`MapSpec` are used.
 """
@@ -12,7 +12,9 @@ import functools
 from collections import deque
 
 import numpy as np
+import torch
 
+from ..sim import make_world, points_clearance
 from .spec import MapError, MapSpec
 
 
@@ -27,30 +29,15 @@ def obstacle_distance(spec: MapSpec, xy: np.ndarray) -> np.ndarray:
 
 def obstacle_distance_arrays(xy: np.ndarray, segments=(), circles=(), boxes=()) -> np.ndarray:
     """:func:`obstacle_distance` for obstacles given as arrays in the layouts of ``World``:
-    walls ``(S, 4)``, circles ``(C, 3)``, boxes ``(K, 5)`` (half extents, yaw in rad). ``(N,)`` m."""
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    best = np.full(len(xy), np.inf)
-    if len(segments):
-        s = np.asarray(segments, dtype=np.float64).reshape(-1, 4)  # (S, 4)
-        a, d = s[:, :2], s[:, 2:] - s[:, :2]
-        rel = xy[:, None, :] - a[None]  # (N, S, 2)
-        t = np.clip((rel * d).sum(-1) / np.maximum((d * d).sum(-1), 1e-12), 0.0, 1.0)
-        best = np.minimum(best, np.linalg.norm(rel - t[..., None] * d, axis=-1).min(1))
-    if len(circles):
-        c = np.asarray(circles, dtype=np.float64).reshape(-1, 3)
-        dist = np.linalg.norm(xy[:, None, :] - c[None, :, :2], axis=-1) - c[None, :, 2]
-        best = np.minimum(best, dist.min(1))
-    if len(boxes):
-        b = np.asarray(boxes, dtype=np.float64).reshape(-1, 5)  # (K, 5) cx, cy, hx, hy, yaw
-        rel = xy[:, None, :] - b[None, :, :2]
-        cos, sin = np.cos(b[:, 4]), np.sin(b[:, 4])
-        # Into each box's frame; then the usual signed distance of an axis-aligned rectangle.
-        lx = np.abs(rel[..., 0] * cos + rel[..., 1] * sin) - b[:, 2]
-        ly = np.abs(-rel[..., 0] * sin + rel[..., 1] * cos) - b[:, 3]
-        outside = np.hypot(np.maximum(lx, 0.0), np.maximum(ly, 0.0))
-        inside = np.minimum(np.maximum(lx, ly), 0.0)
-        best = np.minimum(best, (outside + inside).min(1))
-    return best
+    walls ``(S, 4)``, circles ``(C, 3)``, boxes ``(K, 5)`` (half extents, yaw in rad). ``(N,)`` m.
+
+    The simulator's own geometry (``torchnav.sim.points_clearance``) in float64, so planners,
+    map checks and the simulator agree on every distance."""
+    world = make_world(1, segments=np.asarray(segments, dtype=np.float64).reshape(-1, 4),
+                       circles=np.asarray(circles, dtype=np.float64).reshape(-1, 3),
+                       boxes=np.asarray(boxes, dtype=np.float64).reshape(-1, 5), dtype=torch.float64)
+    pts = torch.as_tensor(np.asarray(xy, dtype=np.float64).reshape(1, -1, 2))
+    return points_clearance(pts, world)[0].numpy()
 
 
 def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
