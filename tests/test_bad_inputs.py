@@ -75,15 +75,19 @@ def test_every_error_is_listed_at_once(tmp_path):
     assert "env.num_envs=0" in str(e.value) and "train.gamma=2" in str(e.value)
 
 
-def test_nav_env_refuses_wrong_action_shape():
+@pytest.mark.parametrize("kind", ["nav", "line"])
+def test_envs_refuse_wrong_action_shape_dtype_and_nan(kind):
     from tensordict import TensorDict
 
-    from torchnav.envs import make_env
+    from torchnav.envs import make_env, make_line_env
 
-    env = make_env("arena", num_envs=4)
+    env = make_env("arena", num_envs=4) if kind == "nav" else make_line_env("oval", num_envs=4)
     td = env.reset()
     td["action"] = torch.zeros(4, 3)
     with pytest.raises(ValueError, match=r"action has shape \(4, 3\), expected \(4, 2\)"):
+        env.step(td)
+    td["action"] = torch.zeros(4, 2, dtype=torch.int64)
+    with pytest.raises(ValueError, match="must be a floating-point tensor, got torch.int64"):
         env.step(td)
     bad = TensorDict({"action": torch.full((4, 2), float("nan"))}, batch_size=[4])
     with pytest.raises(ValueError, match="NaN or inf in envs"):

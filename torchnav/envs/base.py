@@ -50,6 +50,8 @@ class BatchedEnv(EnvBase):
         if action.shape != self.action_spec.shape:
             raise ValueError(f"{type(self).__name__}.step: action has shape {tuple(action.shape)}, expected {tuple(self.action_spec.shape)} "
                              f"({self.action_spec.shape[-1]} values per env for {self.num_envs} envs)")
+        if self.cfg.action.mode != "discrete" and not action.is_floating_point():
+            raise ValueError(f"{type(self).__name__}.step: a continuous action must be a floating-point tensor, got {action.dtype}")
         if self.cfg.check_actions and not torch.isfinite(action).all():
             bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
             raise ValueError(
