@@ -277,6 +277,13 @@ def test_every_recorded_schema_is_one_foxglove_can_parse(tmp_path):
     assert len(schemas) >= 7
     for name, schema in schemas.items():
         assert not _arrays_of_arrays(schema), f"{name}: arrays of arrays at {_arrays_of_arrays(schema)}"
-    start = next(ep for ep in read_recording(path).episodes()).start
+    rec = read_recording(path)
+    roots = {}
+    for name in ("/env0/tf", "/env1/tf"):
+        root = rec.topic(name)[0].data["transforms"][0]
+        assert root["parent_frame_id"] == "world"
+        roots[root["child_frame_id"]] = root["translation"]["x"]
+    assert roots == {"env0/world": 0.0, "env1/world": 30.0}  # one tree: no missing transform between envs
+    start = next(ep for ep in rec.episodes()).start
     world = start["world"]
     assert all(isinstance(x, float) for x in world["segments"]) and len(world["segments"]) % 4 == 0 and len(world["boxes"]) % 5 == 0

@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 
 WALL_HEIGHT = 0.5  # m, only for the 3D view
+ROOT_FRAME = "world"  # parent of every recorded env's env<i>/world
+ENV_SPACING = 30.0  # m between the recorded envs' worlds along x under ROOT_FRAME
 ROBOT_HEIGHT = 0.25  # m
 COLORS = {
     "wall": (0.25, 0.25, 0.25, 1.0), "box": (0.55, 0.55, 0.55, 1.0), "circle": (0.55, 0.55, 0.55, 1.0),
@@ -69,6 +71,9 @@ class EnvStream:
         self.rec = rec
         self.channels: dict[str, int] = {}
         self.frame = f"env{env_index}/world"
+        # every env's world hangs off one root frame, side by side, so that a viewer can place
+        # any recorded env in any other's view (no "missing transform" between env trees)
+        self.offset_x = ENV_SPACING * list(rec.envs).index(env_index)
         self.base = f"env{env_index}/base_link"
         self.laser = f"env{env_index}/laser"
         self.radius = float(env.cfg.robot.radius)
@@ -199,6 +204,8 @@ class EnvStream:
         ts = stamp(self.t)
         ox, oy, oyaw = self.laser_tf
         self._add("tf", {"transforms": [
+            {"timestamp": ts, "parent_frame_id": ROOT_FRAME, "child_frame_id": self.frame,
+             "translation": {"x": self.offset_x, "y": 0.0, "z": 0.0}, "rotation": pose(0, 0, 0.0)["orientation"]},
             {"timestamp": ts, "parent_frame_id": self.frame, "child_frame_id": self.base,
              "translation": {"x": x, "y": y, "z": 0.0}, "rotation": pose(0, 0, yaw)["orientation"]},
             {"timestamp": ts, "parent_frame_id": self.base, "child_frame_id": self.laser,
