@@ -44,13 +44,6 @@ import torch
 from tensordict import TensorDict
 
 from .envs import LineEnv, NavEnv, make_env, make_line_env
-from .envs.line_env import FLAG_KEYS as LINE_FLAGS
-
-_NAV_FLAGS = ("success", "collision")
-
-
-def _flags(env: NavEnv | LineEnv) -> tuple[str, ...]:
-    return LINE_FLAGS if isinstance(env, LineEnv) else _NAV_FLAGS
 
 
 def _spaces(env: NavEnv | LineEnv) -> tuple[spaces.Box, spaces.Space]:
@@ -149,7 +142,7 @@ class TorchnavVectorEnv(VectorEnv):
         return td["observation"].to(torch.float32).cpu().numpy()
 
     def _info(self, td: TensorDict) -> dict[str, Any]:
-        return {k: td[k].reshape(-1).cpu().numpy() for k in _flags(self.env)}
+        return {k: td[k].reshape(-1).cpu().numpy() for k in self.env.flag_keys}
 
 
 class TorchnavEnv(gymnasium.Env):
