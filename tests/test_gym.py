@@ -70,8 +70,12 @@ def test_vector_env_refuses_wrong_action_shapes():
 
 
 def test_unknown_config_key_is_named():
-    with pytest.raises(Exception, match="curiculum"):
+    from torchnav.config import ConfigError
+
+    with pytest.raises(ConfigError, match="curiculum"):
         gymnasium.make("torchnav/Navigation-v0", curiculum={"mode": "off"})
+    with pytest.raises(ConfigError, match="num_envs"):  # one robot: a batch size is a mistake, not ignored
+        gymnasium.make("torchnav/Navigation-v0", num_envs=4)
 
 
 def test_sb3_ppo_trains_on_the_single_env():

@@ -137,12 +137,14 @@ class TorchnavVectorEnv(VectorEnv):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2) (two values in [-1, 1] per env), got {tuple(a.shape)}")
         return a.to(torch.float32)
 
+    # Copies, never views: the arrays handed out (and edited at autoreset) must not alias the env's tensors.
+
     @staticmethod
     def _obs(td: TensorDict) -> np.ndarray:
-        return td["observation"].to(torch.float32).cpu().numpy()
+        return np.array(td["observation"].to(torch.float32).cpu().numpy(), copy=True)
 
     def _info(self, td: TensorDict) -> dict[str, Any]:
-        return {k: td[k].reshape(-1).cpu().numpy() for k in self.env.flag_keys}
+        return {k: np.array(td[k].reshape(-1).cpu().numpy(), copy=True) for k in self.env.flag_keys}
 
 
 class TorchnavEnv(gymnasium.Env):
@@ -187,7 +189,7 @@ class TorchnavEnv(gymnasium.Env):
         self._vec.close()
 
 
-def navigation_env(num_envs: int = 1, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
+def navigation_env(seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
     """``gymnasium.make("torchnav/Navigation-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_env``."""
     return TorchnavEnv(_make("navigation", 1, seed, device, kwargs))
 
@@ -197,7 +199,7 @@ def navigation_vector_env(num_envs: int = 64, seed: int | None = 0, device: str 
     return TorchnavVectorEnv(_make("navigation", num_envs, seed, device, kwargs))
 
 
-def line_env(num_envs: int = 1, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
+def line_env(seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
     """``gymnasium.make("torchnav/LineFollowing-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_line_env``."""
     return TorchnavEnv(_make("line", 1, seed, device, kwargs))
 
