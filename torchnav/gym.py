@@ -43,6 +43,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 
+from .config import ConfigError
 from .envs import LineEnv, NavEnv, make_env, make_line_env
 
 
@@ -61,7 +62,13 @@ def _spaces(env: NavEnv | LineEnv) -> tuple[spaces.Box, spaces.Space]:
     return obs_space, act_space
 
 
-def _make(kind: str, num_envs: int, seed: int | None, device: str, kwargs: dict[str, Any]) -> NavEnv | LineEnv:
+def _make(kind: str, num_envs: int | None, seed: int | None, device: str, kwargs: dict[str, Any]) -> NavEnv | LineEnv:
+    """``num_envs=None``: one robot, where a ``num_envs`` keyword is refused rather than ignored."""
+    if num_envs is None:
+        if "num_envs" in kwargs:
+            raise ConfigError(f"num_envs: the single {kind} env drives one robot; for a batch use gymnasium.make_vec(id, num_envs=N, "
+                              "vectorization_mode=\"vector_entry_point\")")
+        num_envs = 1
     if kind == "navigation":
         return make_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
     return make_line_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
@@ -191,7 +198,7 @@ class TorchnavEnv(gymnasium.Env):
 
 def navigation_env(seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
     """``gymnasium.make("torchnav/Navigation-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_env``."""
-    return TorchnavEnv(_make("navigation", 1, seed, device, kwargs))
+    return TorchnavEnv(_make("navigation", None, seed, device, kwargs))
 
 
 def navigation_vector_env(num_envs: int = 64, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavVectorEnv:
@@ -201,7 +208,7 @@ def navigation_vector_env(num_envs: int = 64, seed: int | None = 0, device: str 
 
 def line_env(seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
     """``gymnasium.make("torchnav/LineFollowing-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_line_env``."""
-    return TorchnavEnv(_make("line", 1, seed, device, kwargs))
+    return TorchnavEnv(_make("line", None, seed, device, kwargs))
 
 
 def line_vector_env(num_envs: int = 64, seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavVectorEnv:
