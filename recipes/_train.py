@@ -26,9 +26,8 @@ import _common as C
 from torchnav.config import merge
 
 from torchnav.envs import NavEnv
-from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED, bind_policy, eval_config, format_summary, run_episodes, summarize
-from torchnav.record import EpisodeRecorder, record_rollout
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED, eval_config, format_summary, record_with, run_episodes, summarize
+from torchnav.record import EpisodeRecorder
 from torchnav.policy import Actor, policy_payload, save_policy, to_policy
 
 
@@ -36,13 +35,8 @@ RECENT_EPISODES = 500  # training episodes behind the train/<outcome>_rate figur
 
 
 def record_episodes_with(task, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any]) -> Any:
-    """One deterministic episode per env of ``task.eval_env(episodes, ...)``, written by
-    ``make_recorder(env)`` (an ``EpisodeRecorder`` to an MCAP file, or a ``LiveView``)."""
-    env = task.eval_env(episodes, device, seed)
-    bind_policy(policy, env)
-    with make_recorder(env) as rec, set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        record_rollout(env, policy, max_steps=env.cfg.max_steps, recorder=rec, stack=False)
-    return rec
+    """``torchnav.evaluation.record_with`` on ``task.eval_env(episodes, ...)``."""
+    return record_with(policy, task.eval_env(episodes, device, seed), make_recorder)
 
 
 class NavAdapter:

@@ -223,12 +223,20 @@ def record_episodes(
     Returns the recorder (its ``error`` is set, and a warning was issued, if the file
     could not be written; training code can carry on).
     """
-    from .record import EpisodeRecorder, record_rollout
+    from .record import EpisodeRecorder
 
-    env = NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed)
-    bind_policy(policy, env)
     meta = {"seed": seed, **(metadata or {})}
-    with EpisodeRecorder(path, env, envs=range(n_episodes), metadata=meta, episodes=1) as rec:
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            record_rollout(env, policy, max_steps=cfg.max_steps, recorder=rec, stack=False)
+    return record_with(policy, NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed),
+                       lambda env: EpisodeRecorder(path, env, envs=range(n_episodes), metadata=meta, episodes=1))
+
+
+@torch.no_grad()
+def record_with(policy: Callable[[TensorDictBase], TensorDictBase], env: Any, make_recorder: Callable[[Any], Any]) -> Any:
+    """One deterministic episode per env of ``env`` (any task), written by ``make_recorder(env)``:
+    an ``EpisodeRecorder`` to an MCAP file or a ``LiveView``. Returns the recorder."""
+    from .record import record_rollout
+
+    bind_policy(policy, env)
+    with make_recorder(env) as rec, set_exploration_type(ExplorationType.DETERMINISTIC):
+        record_rollout(env, policy, max_steps=env.cfg.max_steps, recorder=rec, stack=False)
     return rec

@@ -4,7 +4,7 @@ The same messages, topics and schemas as an MCAP recording (``EpisodeRecorder``)
 as they are made instead of written to a file:
 
     from torchnav.record import LiveView, record_rollout
-    with LiveView(env, envs=(0, 1), port=8765) as view:   # prints where to connect
+    with LiveView(env, envs=(0, 1), port=8765) as view:   # view.port: where to connect
         record_rollout(env, policy, max_steps=1000, recorder=view)
 
 In the Foxglove app: *Open connection* -> *Foxglove WebSocket* -> ``ws://localhost:8765``,
