@@ -9,6 +9,9 @@ narrow-phase reductions test every ray against every slot of a kind:
   ``torch.compile`` this fuses into one loop over contiguous memory and never
   materialises ``(B, R, N)`` temporaries (see docs/performance.md).
 
+By default each set of slots (one kind of obstacle, or a broad phase's dense set)
+is unrolled when it holds at most ``UNROLL_SLOTS`` slots and batched otherwise.
+
 For worlds with many obstacles, :func:`cast_fan` adds a broad phase for evenly
 spaced rays (a lidar fan): an obstacle can only be hit by the rays that pass
 through its bounding circle, which from the sensor spans ``phi +- asin(rho/D)``.
@@ -32,7 +35,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .state import World
+from .state import World, planar_rows
 
 _INF = float("inf")
 _TINY = 1e-12
@@ -120,9 +123,12 @@ def bounding_circles(key: str, obs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return cx, cy, torch.hypot(hx, hy)
 
 
-def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask: Tensor, fn, unroll: bool) -> Tensor:
+UNROLL_SLOTS = 32  # sets of at most this many slots are unrolled unless the caller says otherwise
+
+
+def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask: Tensor, fn, unroll: bool | None) -> Tensor:
     """Every ray ``(B, R)`` against every slot ``(B, N, w)`` of one kind -> nearest hit ``(B, R)``."""
-    if unroll:
+    if obs.shape[1] <= UNROLL_SLOTS if unroll is None else unroll:
         best = torch.full_like(dx, _INF)
         for i in range(obs.shape[1]):
             best = torch.minimum(best, fn(ox, oy, dx, dy, obs[:, i].unsqueeze(1), mask[:, i : i + 1]))
@@ -131,18 +137,13 @@ def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask:
     return hits.amin(-1)
 
 
-def _auto_unroll(world: World) -> bool:
-    return sum(getattr(world, k).shape[1] for k, _, _ in KINDS) <= 32
-
-
 def cast_rays(origin: Tensor, angles: Tensor, world: World, unroll: bool | None = None) -> Tensor:
     """Nearest hit distance ``(B, R)`` of rays from ``origin`` ``(B, 2)`` at world ``angles`` ``(B, R)``;
     ``inf`` where a ray hits nothing. Every ray against every slot (no broad phase).
 
-    ``unroll`` picks the reduction (see the module docstring); ``None`` unrolls when
-    the world has at most 32 obstacle slots.
+    ``unroll`` picks the reduction (see the module docstring); ``None`` unrolls the
+    kinds with at most ``UNROLL_SLOTS`` slots.
     """
-    unroll = _auto_unroll(world) if unroll is None else unroll
     dx, dy = torch.cos(angles), torch.sin(angles)
     ox, oy = origin[:, 0:1], origin[:, 1:2]  # (B, 1)
     best = torch.full_like(dx, _INF)
@@ -186,7 +187,8 @@ class RayFan:
 
 def _window_and_wide(fan: RayFan, key: str, obs: Tensor, mask: Tensor, window: int) -> tuple[Tensor, Tensor]:
     """Fractional ray index ``(B, N)`` of each obstacle's bounding-circle centre, and whether the
-    obstacle may reach rays outside its window of ``2 * window + 1`` rays (bool ``(B, N)``).
+    obstacle may reach rays outside its window of ``2 * window + 1`` rays (``(B, N)`` int64, 0 or 1:
+    compiled CPU kernels store bool tensors about 20x slower than integers, see docs/performance.md).
 
     The rays just outside the window lie at least ``(window + 1/2) * spacing`` from the
     centre's direction; an obstacle is safe when its bounding circle's half angle
@@ -196,7 +198,7 @@ def _window_and_wide(fan: RayFan, key: str, obs: Tensor, mask: Tensor, window: i
     cx, cy, rho = bounding_circles(key, obs)
     rx, ry = cx - fan.origin[:, 0:1], cy - fan.origin[:, 1:2]
     limit = min((window + 0.5) * fan.spacing * (1.0 - 1e-3), 0.5 * math.pi)
-    wide = mask & (rho * rho >= (rx * rx + ry * ry) * math.sin(limit) ** 2)
+    wide = (mask & (rho * rho >= (rx * rx + ry * ry) * math.sin(limit) ** 2)).long()
     return fan.index_of(torch.atan2(ry, rx)), wide
 
 
@@ -207,7 +209,6 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
     go through the angular broad phase (module docstring). ``unroll`` picks the
     reduction of the every-ray tests.
     """
-    unroll = _auto_unroll(world) if unroll is None else unroll
     dx, dy = torch.cos(fan.angles), torch.sin(fan.angles)
     ox, oy = fan.origin[:, 0:1], fan.origin[:, 1:2]
     best = torch.full_like(dx, _INF)
@@ -231,7 +232,7 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
             else:
                 valid = (k >= 0) & (k <= fan.n - 1)
             flat = k.clamp(0, fan.n - 1).reshape(b, -1).long()  # (B, N * (2 window + 1))
-        dense_obs = obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width))
+        dense_obs = planar_rows(obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width)))
         best = torch.minimum(best, _cast_all(ox, oy, dx, dy, dense_obs, dense_ok & mask.gather(1, dense), fn, unroll))
         angle = fan.first.reshape(b, 1, 1) + k * fan.spacing  # differentiable in the sensor's heading
         wdx, wdy = torch.cos(angle), torch.sin(angle)
@@ -241,18 +242,18 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
 
 
 def _first_wide(wide: Tensor, k: int) -> tuple[Tensor, Tensor]:
-    """Slot indices ``(B, k)`` of the first ``k`` True entries of ``wide`` ``(B, N)`` per row, and
-    which of them are real (rows with fewer than ``k`` fill with slot 0, marked False).
+    """Slot indices ``(B, k)`` of the first ``k`` nonzero entries of ``wide`` ``(B, N)`` (int64, 0 or 1)
+    per row, and which of them are real (rows with fewer than ``k`` fill with slot 0, marked False).
 
     A running count and one scatter: cheaper than ``topk`` and free of host syncs.
     """
     b, n = wide.shape
-    rank = wide.long().cumsum(1) - 1
-    slot = torch.where(wide & (rank < k), rank, k)  # slot k collects everything not taken
+    rank = wide.cumsum(1) - 1
+    slot = torch.where((wide > 0) & (rank < k), rank, k)  # slot k collects everything not taken
     order = torch.arange(n, device=wide.device).expand(b, n)
     picked = torch.zeros(b, k + 1, dtype=torch.long, device=wide.device).scatter(1, slot, order)
-    taken = torch.zeros(b, k + 1, dtype=torch.bool, device=wide.device).scatter(1, slot, wide)
-    return picked[:, :k], taken[:, :k]
+    taken = torch.zeros(b, k + 1, dtype=torch.long, device=wide.device).scatter(1, slot, wide)
+    return picked[:, :k], taken[:, :k] > 0
 
 
 def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64) -> Tensor:

@@ -36,45 +36,45 @@ _INF = float("inf")
 
 def _nearest_points(origin: Tensor, world: World) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     """Per obstacle of every kind (walls, circles, boxes, concatenated): the distance ``(B, M)``
-    from the sensor to its nearest point (0 inside a solid obstacle), that point's world
-    direction (rad, not differentiated), a validity mask, and ``(B,)`` whether the sensor
-    lies inside any circle or box."""
+    from the sensor to its nearest point (0 inside a solid obstacle, ``inf`` for masked slots
+    and zero-size obstacles), that point's world direction (rad, not differentiated), and
+    ``(B,)`` whether the sensor lies inside any circle or box.
+
+    Validity is folded into the distances rather than returned as a mask: compiled CPU
+    kernels store bool tensors about 20x slower than floats (docs/performance.md)."""
     ox, oy = origin[:, 0:1], origin[:, 1:2]
-    dist, phi, valid = [], [], []
+    dist, phi = [], []
     inside = torch.zeros(origin.shape[0], dtype=torch.bool, device=origin.device)
     if world.segments.shape[1]:
         seg = world.segments
         ax, ay, bx, by = seg.unbind(-1)
         ex, ey = bx - ax, by - ay
         ee = ex * ex + ey * ey
-        dist.append(segment_distance(ox, oy, seg))
+        dist.append(torch.where(world.segment_mask & (ee > 0), segment_distance(ox, oy, seg), _INF))
         with torch.no_grad():
             t = (((ox - ax) * ex + (oy - ay) * ey) / ee.clamp(min=1e-30)).clamp(0.0, 1.0)
             phi.append(torch.atan2(ay + t * ey - oy, ax + t * ex - ox))
-        valid.append(world.segment_mask & (ee > 0))
     if world.circles.shape[1]:
         cx, cy, r = world.circles.unbind(-1)
         gap = safe_hypot(cx - ox, cy - oy) - r
         ok = world.circle_mask & (r > 0)
-        dist.append(gap.clamp(min=0.0))
+        dist.append(torch.where(ok, gap.clamp(min=0.0), _INF))
         with torch.no_grad():
             phi.append(torch.atan2(cy - oy, cx - ox))
-        valid.append(ok)
         inside |= (ok & (gap <= 0)).any(1)
     if world.boxes.shape[1]:
         cx, cy, hx, hy, yaw = world.boxes.unbind(-1)
         gap = point_box_distance(origin, world.boxes)
         ok = world.box_mask & ((hx > 0) | (hy > 0))
-        dist.append(gap.clamp(min=0.0))
+        dist.append(torch.where(ok, gap.clamp(min=0.0), _INF))
         with torch.no_grad():
             # The nearest point in the box frame is the sensor clamped to the box.
             qx, qy = rotate(ox - cx, oy - cy, -yaw)
             nx, ny = qx.clamp(-hx, hx) - qx, qy.clamp(-hy, hy) - qy
             wx, wy = rotate(nx, ny, yaw)
             phi.append(torch.atan2(wy, wx))
-        valid.append(ok)
         inside |= (ok & (gap <= 0)).any(1)
-    return torch.cat(dist, 1), torch.cat(phi, 1), torch.cat(valid, 1), inside
+    return torch.cat(dist, 1), torch.cat(phi, 1), inside
 
 
 def sector_ranges(boundaries: RayFan, world: World, window: int = 2, dense_slots: int = 64, unroll: bool | None = None) -> Tensor:
@@ -93,13 +93,13 @@ def sector_ranges(boundaries: RayFan, world: World, window: int = 2, dense_slots
         best = torch.minimum(edge[:, :-1], edge[:, 1:])
     if world.segments.shape[1] + world.circles.shape[1] + world.boxes.shape[1] == 0:
         return best
-    dist, phi, valid, inside = _nearest_points(boundaries.origin, world)
+    dist, phi, inside = _nearest_points(boundaries.origin, world)
     with torch.no_grad():
         u = torch.floor(boundaries.index_of(phi))
         if boundaries.closed:
             u = u - n * torch.floor(u / n)  # index_of does not wrap closed fans
-        else:  # a nearest point exactly on the last boundary is that boundary ray's hit anyway
-            valid = valid & (u >= 0) & (u < n)
         sector = u.clamp(0, n - 1).long()
-    best = best.scatter_reduce(1, sector, torch.where(valid, dist, _INF), "amin", include_self=True)
+    if not boundaries.closed:  # a nearest point exactly on the last boundary is that boundary ray's hit anyway
+        dist = torch.where((u >= 0) & (u < n), dist, _INF)
+    best = best.scatter_reduce(1, sector, dist, "amin", include_self=True)
     return torch.where(inside.unsqueeze(-1), torch.zeros_like(best), best)

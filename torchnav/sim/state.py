@@ -162,6 +162,12 @@ def _(x: Tensor) -> Tensor:
 _planar_copy.register_autograd(lambda ctx, grad: grad.permute(1, 2, 0))
 
 
+def planar_rows(x: Tensor) -> Tensor:
+    """``x`` ``(B, N, k)`` stored component-major (same shape and values): a materialised copy
+    whose ``x[..., i]`` is a contiguous ``(B, N)`` block."""
+    return _planar_copy(x).permute(1, 2, 0) if x.shape[1] else x
+
+
 def planar_world(world: World) -> World:
     """``world`` with each obstacle tensor stored component-major: the same ``(B, N, k)``
     shapes and values, but ``obs[..., i]`` is a contiguous ``(B, N)`` block.
@@ -173,8 +179,7 @@ def planar_world(world: World) -> World:
     """
     out = {}
     for key, mkey, _ in _KIND_MASKS:
-        t = getattr(world, key)
-        out[key] = _planar_copy(t).permute(1, 2, 0) if t.shape[1] else t
+        out[key] = planar_rows(getattr(world, key))
         out[mkey] = getattr(world, mkey)
     return World(**out, batch_size=world.batch_size, device=world.device)
 

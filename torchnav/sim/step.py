@@ -53,8 +53,8 @@ def step(
         params: robot, integrator and lidar parameters.
         generator: source of odometry and lidar noise; without one the step is noise-free.
         unroll: the lidar's every-ray reduction (``raycast.py``): a running minimum over
-            obstacle slots (True), one ``(B, R, N)`` minimum (False), or chosen by the slot
-            count (None, the default); the result is the same up to rounding.
+            obstacle slots (True), one ``(B, R, N)`` minimum (False), or chosen per set of
+            slots by its size (None, the default); the result is the same up to rounding.
     Returns:
         The new state; ``state`` is left untouched.
     """
