@@ -142,7 +142,8 @@ def quantize_weight(w: np.ndarray, weights: str, layer: int = 0) -> tuple[np.nda
     if weights == "float32":
         return w, w
     if weights == "float16":
-        h = w.astype(np.float16)
+        with np.errstate(over="ignore"):  # checked just below, with a message naming the layer
+            h = w.astype(np.float16)
         if not np.isfinite(h).all():
             raise ValueError(f"layer {layer} has weights beyond float16's range (|w| > 65504); export it as float32 or int8")
         return h.astype(np.float32), h.view(np.uint16)
