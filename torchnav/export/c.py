@@ -3,8 +3,11 @@
 ``export_c(net, out_dir, name)`` writes
 
 - ``<name>.h``: sizes (``<NAME>_OBS_SIZE``, ``<NAME>_ACT_SIZE``, ...) and prototypes;
-- ``<name>.c``: the weights as ``static const float`` arrays (row-major ``(out, in)``,
-  ``w[o * IN + i]``, as in ``nn.Linear``), the observation normalisation baked in, and
+- ``<name>.c``: the weights as ``static const`` arrays (row-major ``(out, in)``,
+  ``w[o * IN + i]``, as in ``nn.Linear``) of ``float``, of float16 bit patterns
+  (``uint16_t``, converted to float as they are used) or of ``int8_t`` with one float
+  scale per row (``Network.weights``, see ``common.quantize``), the observation
+  normalisation baked in, and
   ``void <name>_forward(const float *obs, float *action)``: two static buffers of the
   widest layer, no malloc, no libm except ``tanhf`` (tanh layers and heads only);
 - ``<name>_test.c``: reads observations (whitespace-separated floats) from stdin and
@@ -51,10 +54,20 @@ def c_float(x: float) -> str:
 
 
 def _array(name: str, values: np.ndarray, comment: str, per_line: int = 8) -> str:
-    flat = [c_float(v) for v in np.asarray(values, dtype=np.float32).reshape(-1)]
+    """A ``static const`` C array: float literals for float arrays, hex for uint16 (float16 bits), decimal for int8."""
+    values = np.asarray(values)
+    if values.dtype == np.uint16:
+        ctype, flat, per_line = "uint16_t", ["0x%04x" % v for v in values.reshape(-1)], 12
+    elif values.dtype == np.int8:
+        ctype, flat, per_line = "int8_t", ["%d" % v for v in values.reshape(-1)], 16
+    else:
+        ctype, flat = "float", [c_float(v) for v in values.astype(np.float32).reshape(-1)]
     rows = [", ".join(flat[i:i + per_line]) for i in range(0, len(flat), per_line)]
     body = ",\n    ".join(rows)
-    return f"/* {comment} */\nstatic const float {name}[{len(flat)}] = {{\n    {body}\n}};\n"
+    return f"/* {comment} */\nstatic const {ctype} {name}[{len(flat)}] = {{\n    {body}\n}};\n"
+
+
+_WEIGHT_C = {"float32": "float", "float16": "uint16_t (float16 bits)", "int8": "int8_t with a float scale per row"}
 
 
 def render_header(net: Network, name: str) -> str:
@@ -65,6 +78,7 @@ def render_header(net: Network, name: str) -> str:
         f" * task {net.metadata.get('task', '?')}, algorithm {net.metadata.get('algorithm', '?')}, "
         f"layers {net.obs_size} -> {' -> '.join(str(w.shape[0]) for w, _ in net.layers)}, "
         f"{net.activation}, {'argmax over an action table' if discrete else 'tanh head'}.",
+        f" * Weights stored as {_WEIGHT_C[net.weights]}; biases, normalisation and arithmetic in float.",
         f" * Constants {fp['flash_bytes']} bytes (flash), buffers {fp['ram_bytes']} bytes (RAM, static), {fp['macs']} multiply-adds per call.",
         " * Not reentrant: the working buffers are static (call it from one context only). */",
         f"#ifndef {N}_H", f"#define {N}_H", "",
@@ -89,30 +103,70 @@ def render_header(net: Network, name: str) -> str:
     return "\n".join(lines)
 
 
+def _dense_source(net: Network, name: str, act: str) -> list[str]:
+    """The layer function for the network's weight format: ``y = act(W x + b)``, sums in float in index order."""
+    if net.weights == "float32":
+        wtype, term, scale_arg, finish = "float", "row[i] * x[i]", "", "v += b[o];"
+    elif net.weights == "float16":
+        wtype, term, scale_arg, finish = "uint16_t", f"{name}_half(row[i]) * x[i]", "", "v += b[o];"
+    else:
+        wtype, term, scale_arg, finish = "int8_t", "(float)row[i] * x[i]", "const float *s, ", "v = v * s[o] + b[o];"
+    lines = []
+    if net.weights == "float16":
+        lines += [
+            "/* float16 bits -> float, exactly. Cortex-M4F/M7 (gcc -mfp16-format=ieee) convert in one instruction;",
+            " * elsewhere: put the exponent and mantissa into a float and rescale (2^112 turns half's bias of 15",
+            " * into float's 127; float16 subnormals become float normals), then the sign. No inf/NaN are stored. */",
+            f"static float {name}_half(uint16_t h)", "{",
+            "#if defined(__ARM_FP16_FORMAT_IEEE)",
+            "    __fp16 f;", "    memcpy(&f, &h, sizeof f);", "    return (float)f;",
+            "#else",
+            "    uint32_t bits = (uint32_t)(h & 0x7fffu) << 13;", "    float f;",
+            "    memcpy(&f, &bits, sizeof f);", "    f *= 0x1p112f;",
+            "    return (h & 0x8000u) ? -f : f;",
+            "#endif", "}", ""]
+    what = {"float32": "W (n_out, n_in) row-major", "float16": "W (n_out, n_in) row-major float16 bits",
+            "int8": "W = s[o] * q, q (n_out, n_in) row-major int8, s[o] applied after the row sum"}[net.weights]
+    lines += [
+        f"/* y = act(W x + b); {what}; sums in float, in index order. */",
+        f"static void {name}_dense(const {wtype} *w, {scale_arg}const float *b, const float *x, float *y, int n_in, int n_out, int act)",
+        "{", "    int o, i;", "    for (o = 0; o < n_out; ++o) {", f"        const {wtype} *row = w + o * n_in;",
+        "        float v = 0.0f;", "        for (i = 0; i < n_in; ++i) {", f"            v += {term};", "        }",
+        f"        {finish}", f"        y[o] = act ? ({act}) : v;", "    }", "}", ""]
+    return lines
+
+
 def render_source(net: Network, name: str) -> str:
     N = name.upper()
     act = "v > 0.0f ? v : 0.0f" if net.activation == "relu" else "tanhf(v)"
     needs_math = net.activation == "tanh" or net.output == "tanh"
+    includes = [f'#include "{name}.h"'] + (["#include <math.h>"] if needs_math else [])
+    if net.weights != "float32":
+        includes.append("#include <stdint.h>")
+    if net.weights == "float16":
+        includes.append("#include <string.h>")
     parts = [f'/* {name}.c - generated by `python -m torchnav.export`; see {name}.h. Do not edit. */',
-             f'#include "{name}.h"', "#include <math.h>" if needs_math else "", "",
+             *includes, "",
              f"#define {N}_MAX_WIDTH {max(net.max_width, net.obs_size)}", "",
              _array(f"{name}_obs_loc", net.obs_loc, "observation offset: x = (obs - obs_loc) / obs_scale"),
              _array(f"{name}_obs_scale", net.obs_scale, "observation scale")]
     for k, (w, b) in enumerate(net.layers):
         o, i = w.shape
-        parts += [_array(f"{name}_w{k}", w, f"layer {k} weight ({o}, {i}) row-major: w[o * {i} + i]"),
-                  _array(f"{name}_b{k}", b, f"layer {k} bias ({o},)")]
+        if net.weights == "float32":
+            parts.append(_array(f"{name}_w{k}", w, f"layer {k} weight ({o}, {i}) row-major: w[o * {i} + i]"))
+        elif net.weights == "float16":
+            parts.append(_array(f"{name}_w{k}", net.stored[k], f"layer {k} weight ({o}, {i}) row-major float16 bits: w[o * {i} + i]"))
+        else:
+            q, scale = net.stored[k]
+            parts += [_array(f"{name}_w{k}", q, f"layer {k} weight ({o}, {i}) row-major int8: W[o][i] = s{k}[o] * w[o * {i} + i]"),
+                      _array(f"{name}_s{k}", scale, f"layer {k} scale per output row ({o},)")]
+        parts.append(_array(f"{name}_b{k}", b, f"layer {k} bias ({o},)"))
     if net.output == "argmax":
         t = _array(f"{name}_action_table", net.action_table, f"command of each action ({net.out_size}, {net.act_size}) row-major")
         parts.append(t.replace("static const float", "const float", 1))
+    parts += [f"static float {name}_buf_a[{N}_MAX_WIDTH];", f"static float {name}_buf_b[{N}_MAX_WIDTH];", ""]
+    parts += _dense_source(net, name, act)
     parts += [
-        f"static float {name}_buf_a[{N}_MAX_WIDTH];",
-        f"static float {name}_buf_b[{N}_MAX_WIDTH];", "",
-        "/* y = act(W x + b); W (n_out, n_in) row-major; sums in float, in index order. */",
-        f"static void {name}_dense(const float *w, const float *b, const float *x, float *y, int n_in, int n_out, int act)",
-        "{", "    int o, i;", "    for (o = 0; o < n_out; ++o) {", "        const float *row = w + o * n_in;",
-        "        float v = 0.0f;", "        for (i = 0; i < n_in; ++i) {", "            v += row[i] * x[i];", "        }",
-        "        v += b[o];", f"        y[o] = act ? ({act}) : v;", "    }", "}", "",
         "/* The last layer's outputs (actions before the tanh head, or Q-values); returns a pointer to a static buffer. */",
         f"static const float *{name}_network(const float *obs)", "{",
         f"    float *x = {name}_buf_a, *y = {name}_buf_b, *t;", "    int i;",
@@ -121,7 +175,8 @@ def render_source(net: Network, name: str) -> str:
     last = len(net.layers) - 1
     for k, (w, _) in enumerate(net.layers):
         o, i = w.shape
-        parts.append(f"    {name}_dense({name}_w{k}, {name}_b{k}, x, y, {i}, {o}, {0 if k == last else 1});")
+        scale = f"{name}_s{k}, " if net.weights == "int8" else ""
+        parts.append(f"    {name}_dense({name}_w{k}, {scale}{name}_b{k}, x, y, {i}, {o}, {0 if k == last else 1});")
         parts.append("    t = x; x = y; y = t;")
     parts += ["    (void)y;", "    return x;", "}", ""]
     if net.output == "tanh":

@@ -7,10 +7,19 @@ An exported policy is always the ``torchnav.policy.Actor`` computation
     y = W_L x + b_L                                 (out_size,)
     tanh head:   action = tanh(y)                   (out_size,) in [-1, 1]
     argmax head: index = argmax(y), action = action_table[index]   (2,)
+
+The weight matrices W_k can be stored as float32 (exact), float16 (IEEE half, rounded
+to nearest even) or int8 with one float32 scale per output row (symmetric per-channel
+quantisation, q = round(W / s), s = max|row| / 127, so W ~= s * q). Biases, the
+normalisation and all arithmetic stay float32: only the weights' storage shrinks.
+``quantize(net, weights)`` gives the network with those weights (``layers`` then hold
+the dequantised float32 values, which ``quantized_actor`` puts into a PyTorch actor:
+the reference the quantised C code is verified against and evaluated with).
 """
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +27,9 @@ import numpy as np
 import torch
 
 from ..policy import Actor, SavedPolicy
+
+WEIGHT_FORMATS = ("float32", "float16", "int8")
+_WEIGHT_BYTES = {"float32": 4, "float16": 2, "int8": 1}
 
 
 @dataclass
@@ -35,6 +47,9 @@ class Network:
     output: str
     action_table: np.ndarray | None
     metadata: dict[str, str] = field(default_factory=dict)
+    weights: str = "float32"
+    #: per layer, what the C code stores: float16 -> uint16 bit patterns (out, in); int8 -> (int8 (out, in), float32 scales (out,))
+    stored: list[Any] | None = None
 
     @property
     def obs_size(self) -> int:
@@ -55,10 +70,16 @@ class Network:
         return max(w.shape[0] for w, _ in self.layers)
 
     def footprint(self) -> dict[str, int]:
-        """Bytes of constant data (flash) and of working buffers (RAM) in the C export, and multiply-adds per call."""
+        """Bytes of constant data (flash) and of working buffers (RAM) in the C export, and multiply-adds per call.
+
+        Flash: weights at their storage size (4, 2 or 1 bytes; int8 adds a float32 scale per
+        output row), biases, normalisation and action table as float32.
+        """
         params = sum(w.size + b.size for w, b in self.layers)
-        consts = params + 2 * self.obs_size + (0 if self.action_table is None else self.action_table.size)
-        return {"parameters": int(params), "flash_bytes": 4 * int(consts),
+        weight_bytes = sum(_WEIGHT_BYTES[self.weights] * w.size + (4 * w.shape[0] if self.weights == "int8" else 0)
+                           for w, _ in self.layers)
+        floats = sum(b.size for _, b in self.layers) + 2 * self.obs_size + (0 if self.action_table is None else self.action_table.size)
+        return {"parameters": int(params), "flash_bytes": int(weight_bytes + 4 * floats),
                 "ram_bytes": 4 * 2 * max(self.max_width, self.obs_size),
                 "macs": int(sum(w.size for w, _ in self.layers))}
 
@@ -106,6 +127,58 @@ def network_of(policy: SavedPolicy | Actor, action_table: torch.Tensor | None = 
     meta.update(obs_size=str(actor.obs_size), act_size=str(actor.out_size if table_np is None else table_np.shape[1]),
                 hidden=",".join(str(h) for h in actor.hidden), activation=actor.activation, output=actor.output)
     return Network(arr(actor.obs_loc), arr(actor.obs_scale), layers, actor.activation, actor.output, table_np, meta)
+
+
+def quantize_weight(w: np.ndarray, weights: str, layer: int = 0) -> tuple[np.ndarray, Any]:
+    """One weight matrix ``(out, in)`` in format ``weights``: ``(dequantised float32 (out, in), stored)``.
+
+    ``stored`` is ``w`` itself (float32), the uint16 bit patterns of the float16 values
+    (float16), or ``(q int8 (out, in), scale float32 (out,))`` with ``dequantised = q * scale``
+    (int8). Raises ``ValueError`` for an unknown format or weights beyond float16's range.
+    """
+    if weights not in WEIGHT_FORMATS:
+        raise ValueError(f"unknown weight format {weights!r}; choose one of {', '.join(WEIGHT_FORMATS)}")
+    w = np.asarray(w, dtype=np.float32)
+    if weights == "float32":
+        return w, w
+    if weights == "float16":
+        with np.errstate(over="ignore"):  # checked just below, with a message naming the layer
+            h = w.astype(np.float16)
+        if not np.isfinite(h).all():
+            raise ValueError(f"layer {layer} has weights beyond float16's range (|w| > 65504); export it as float32 or int8")
+        return h.astype(np.float32), h.view(np.uint16)
+    scale = (np.abs(w).max(axis=1) / np.float32(127.0)).astype(np.float32)
+    scale[scale == 0] = 1.0  # an all-zero row: any scale stores it exactly
+    q = np.clip(np.rint(w / scale[:, None]), -127, 127).astype(np.int8)
+    return (q.astype(np.float32) * scale[:, None]).astype(np.float32), (q, scale)
+
+
+def quantize(net: Network, weights: str) -> Network:
+    """``net`` with its weight matrices stored as ``weights`` (one of ``WEIGHT_FORMATS``).
+
+    ``layers`` of the result hold the dequantised float32 weights (the values the C code
+    multiplies by; for int8 it applies the row's scale after the row sum) and ``stored``
+    what the C code keeps in flash (see ``quantize_weight``).
+    """
+    if net.weights != "float32":
+        raise ValueError(f"the network is already quantised ({net.weights}); quantise the float32 network")
+    pairs = [quantize_weight(w, weights, k) for k, (w, _) in enumerate(net.layers)]
+    if weights == "float32":
+        return net
+    layers = [(deq, b) for (deq, _), (_, b) in zip(pairs, net.layers)]
+    return Network(net.obs_loc, net.obs_scale, layers, net.activation, net.output, net.action_table,
+                   {**net.metadata, "weights": weights}, weights, [st for _, st in pairs])
+
+
+def quantized_actor(actor: Actor, weights: str) -> Actor:
+    """A copy of ``actor`` whose weight matrices hold the dequantised ``weights`` values: the quantised
+    C export's computation in PyTorch (the reference it is verified against, and what evaluation measures)."""
+    out = copy.deepcopy(actor)
+    with torch.no_grad():
+        for k, m in enumerate(out.linear_layers()):
+            deq, _ = quantize_weight(m.weight.detach().cpu().to(torch.float32).numpy(), weights, k)
+            m.weight.copy_(torch.from_numpy(deq))
+    return out
 
 
 def random_observations(net: Network, n: int, seed: int = 0) -> np.ndarray:
