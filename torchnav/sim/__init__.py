@@ -9,11 +9,11 @@ from .kinematics import apply_limits, integrate, integrate_euler, integrate_exac
 from .lidar import cast_rays, hit_box, hit_circle, hit_segment, lidar_fan, lidar_scan, ray_origins_and_angles, scan_is_exact, sectorize
 from .math import safe_hypot, safe_norm, safe_sinc, wrap_angle
 from .params import LidarParams, SimParams
-from .state import SimState, World, cat_worlds, check_world, make_world, pad_world
+from .state import SimState, World, cat_worlds, check_world, make_world, pad_world, planar_world
 from .step import check_action, init_state, step
 
 __all__ = [
-    "LidarParams", "SimParams", "SimState", "World", "make_world", "pad_world", "cat_worlds", "init_state", "check_world",
+    "LidarParams", "SimParams", "SimState", "World", "make_world", "pad_world", "cat_worlds", "planar_world", "init_state", "check_world",
     "step", "check_action", "lidar_scan", "lidar_fan", "scan_is_exact", "cast_rays", "hit_segment", "hit_circle", "hit_box", "sectorize", "ray_origins_and_angles", "disc_clearance",
     "point_segment_distance", "points_clearance", "point_circle_distance", "point_box_distance", "box_corners",
     "integrate", "integrate_euler", "integrate_exact", "apply_limits", "wheels_to_unicycle",

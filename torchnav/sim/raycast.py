@@ -185,10 +185,10 @@ class RayFan:
         return (d + half) / self.spacing
 
 
-def _window_and_wide(fan: RayFan, key: str, obs: Tensor, mask: Tensor, window: int) -> tuple[Tensor, Tensor]:
-    """Fractional ray index ``(B, N)`` of each obstacle's bounding-circle centre, and whether the
-    obstacle may reach rays outside its window of ``2 * window + 1`` rays (``(B, N)`` int64, 0 or 1:
-    compiled CPU kernels store bool tensors about 20x slower than integers, see docs/performance.md).
+def _wide(fan: RayFan, key: str, obs: Tensor, mask: Tensor, window: int) -> Tensor:
+    """Whether each obstacle of kind ``key`` may reach rays outside the window of ``2 * window + 1``
+    rays around its bounding circle's centre: ``(B, N)`` int64, 0 or 1 (compiled CPU kernels
+    store bool tensors about 20x slower than integers, see docs/performance.md).
 
     The rays just outside the window lie at least ``(window + 1/2) * spacing`` from the
     centre's direction; an obstacle is safe when its bounding circle's half angle
@@ -198,8 +198,13 @@ def _window_and_wide(fan: RayFan, key: str, obs: Tensor, mask: Tensor, window: i
     cx, cy, rho = bounding_circles(key, obs)
     rx, ry = cx - fan.origin[:, 0:1], cy - fan.origin[:, 1:2]
     limit = min((window + 0.5) * fan.spacing * (1.0 - 1e-3), 0.5 * math.pi)
-    wide = (mask & (rho * rho >= (rx * rx + ry * ry) * math.sin(limit) ** 2)).long()
-    return fan.index_of(torch.atan2(ry, rx)), wide
+    return (mask & (rho * rho >= (rx * rx + ry * ry) * math.sin(limit) ** 2)).long()
+
+
+def _centre_index(fan: RayFan, key: str, obs: Tensor) -> Tensor:
+    """Fractional ray index ``(B, N)`` of the direction of each obstacle's bounding-circle centre."""
+    cx, cy, _ = bounding_circles(key, obs)
+    return fan.index_of(torch.atan2(cy - fan.origin[:, 1:2], cx - fan.origin[:, 0:1]))
 
 
 def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, unroll: bool | None = None) -> Tensor:
@@ -222,38 +227,37 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
             best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, unroll))
             continue
         with torch.no_grad():
-            u, wide = _window_and_wide(fan, key, obs.detach(), mask, window)
-            dense, dense_ok = _first_wide(wide, dense_slots)
+            dense, dense_ok = _first_wide(_wide(fan, key, obs.detach(), mask, window), dense_slots)
+        dense_obs = planar_rows(obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width)))
+        best = torch.minimum(best, _cast_all(ox, oy, dx, dy, dense_obs, dense_ok & mask.gather(1, dense), fn, unroll))
+        with torch.no_grad():
             # Window ray indices, kept in floating point (integer division is slow on CPU).
+            u = _centre_index(fan, key, obs.detach())
             k = torch.round(u).unsqueeze(-1) + torch.arange(-window, window + 1, device=obs.device, dtype=u.dtype)
             if fan.closed:
                 k = k - fan.n * torch.floor(k / fan.n)
-                valid = torch.ones_like(k, dtype=torch.bool)
-            else:
-                valid = (k >= 0) & (k <= fan.n - 1)
             flat = k.clamp(0, fan.n - 1).reshape(b, -1).long()  # (B, N * (2 window + 1))
-        dense_obs = planar_rows(obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width)))
-        best = torch.minimum(best, _cast_all(ox, oy, dx, dy, dense_obs, dense_ok & mask.gather(1, dense), fn, unroll))
         angle = fan.first.reshape(b, 1, 1) + k * fan.spacing  # differentiable in the sensor's heading
         wdx, wdy = torch.cos(angle), torch.sin(angle)
-        hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), wdx, wdy, obs.unsqueeze(2), mask.unsqueeze(-1) & valid)
+        hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), wdx, wdy, obs.unsqueeze(2), mask.unsqueeze(-1))
+        if not fan.closed:  # window rays past the fan's ends do not exist
+            hits = torch.where((k >= 0) & (k <= fan.n - 1), hits, _INF)
         best = best.scatter_reduce(1, flat, hits.reshape(b, -1), "amin", include_self=True)
     return best
 
 
 def _first_wide(wide: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """Slot indices ``(B, k)`` of the first ``k`` nonzero entries of ``wide`` ``(B, N)`` (int64, 0 or 1)
-    per row, and which of them are real (rows with fewer than ``k`` fill with slot 0, marked False).
+    per row, and which of them are real (rows with fewer than ``k`` fill with the last slot, marked False).
 
-    A running count and one scatter: cheaper than ``topk`` and free of host syncs.
+    The ``j``-th wide slot is where the running count first reaches ``j + 1``: a binary search
+    of the count for each ``j``, cheaper than ``topk`` or a scatter and free of host syncs.
     """
     b, n = wide.shape
-    rank = wide.cumsum(1) - 1
-    slot = torch.where((wide > 0) & (rank < k), rank, k)  # slot k collects everything not taken
-    order = torch.arange(n, device=wide.device).expand(b, n)
-    picked = torch.zeros(b, k + 1, dtype=torch.long, device=wide.device).scatter(1, slot, order)
-    taken = torch.zeros(b, k + 1, dtype=torch.long, device=wide.device).scatter(1, slot, wide)
-    return picked[:, :k], taken[:, :k] > 0
+    count = wide.cumsum(1)
+    wanted = torch.arange(1, k + 1, device=wide.device, dtype=count.dtype).expand(b, k).contiguous()
+    picked = torch.searchsorted(count, wanted)
+    return picked.clamp(max=n - 1), picked < n
 
 
 def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64) -> Tensor:
@@ -263,5 +267,5 @@ def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 
     for key, mkey, _ in KINDS:
         obs, mask = getattr(world, key), getattr(world, mkey)
         if obs.shape[1] > dense_slots:
-            ok &= _window_and_wide(fan, key, obs.detach(), mask, window)[1].sum(1) <= dense_slots
+            ok &= _wide(fan, key, obs.detach(), mask, window).sum(1) <= dense_slots
     return ok
