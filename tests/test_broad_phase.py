@@ -145,3 +145,15 @@ def test_defaults_are_exact_on_generated_worlds(family):
         for lidar in (LidarParams(n_rays=20, fov=math.pi), LidarParams(n_rays=180, fov=math.pi),
                       LidarParams(n_rays=20, fov=2 * math.pi, scan="sectors", window=0)):
             assert scan_is_exact(b.start, b.world, lidar).all(), (family, d, lidar)
+
+
+def test_first_wide_picks_the_first_k_wide_slots_in_order():
+    from torchnav.sim.raycast import _first_wide
+
+    wide = torch.tensor([[0, 1, 0, 1, 1, 0, 1], [0, 0, 0, 0, 0, 0, 0], [1, 1, 1, 1, 1, 1, 1]])
+    picked, taken = _first_wide(wide, 3)
+    assert taken.tolist() == [[True, True, True], [False, False, False], [True, True, True]]
+    assert picked[0].tolist() == [1, 3, 4] and picked[2].tolist() == [0, 1, 2]
+    assert (picked >= 0).all() and (picked < wide.shape[1]).all()  # unfilled entries still index a real slot
+    picked, taken = _first_wide(wide, 5)
+    assert taken[0].tolist() == [True, True, True, True, False] and picked[0, :4].tolist() == [1, 3, 4, 6]

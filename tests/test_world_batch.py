@@ -49,3 +49,20 @@ def test_planar_world_same_values_component_major_and_differentiable():
     (g_planar,) = torch.autograd.grad(lidar_scan(pose, p, lidar).sum(), boxes)
     (g_plain,) = torch.autograd.grad(lidar_scan(pose, w, lidar).sum(), boxes)
     assert torch.equal(g_planar, g_plain) and g_plain.abs().sum() > 0
+
+
+def test_planar_world_keeps_a_planar_world_and_step_gives_the_same_state():
+    from torchnav.sim import SimParams, init_state, planar_world, step
+
+    base = make_world(2, segments=[[-3, -3, 3, -3]], circles=[[1.0, 1.0, 0.3]], boxes=[[-1.0, 1.0, 0.3, 0.2, 0.4]])
+    p = planar_world(base)
+    again = planar_world(p)
+    for key in ("segments", "circles", "boxes"):  # converted once, then used as it is
+        assert getattr(again, key).data_ptr() == getattr(p, key).data_ptr()
+        assert getattr(p, key).data_ptr() != getattr(base, key).data_ptr()
+    params = SimParams()
+    pose = torch.tensor([[0.0, 0.0, 0.3], [0.5, -0.5, -1.0]])
+    action = torch.tensor([[0.3, 0.5], [0.2, -0.4]])
+    a = step(init_state(pose, base, params), action, base, params)
+    b = step(init_state(pose, p, params), action, p, params)
+    assert torch.equal(a.ranges, b.ranges) and torch.equal(a.clearance, b.clearance)

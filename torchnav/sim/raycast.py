@@ -10,7 +10,9 @@ narrow-phase reductions test every ray against every slot of a kind:
   materialises ``(B, R, N)`` temporaries (see docs/performance.md).
 
 By default each set of slots (one kind of obstacle, or a broad phase's dense set)
-is unrolled when it holds at most ``UNROLL_SLOTS`` slots and batched otherwise.
+is unrolled when it holds at most ``UNROLL_SLOTS`` slots under ``torch.compile``
+(``EAGER_UNROLL_SLOTS`` in eager mode, where every unrolled slot costs kernel
+launches) and batched otherwise.
 
 For worlds with many obstacles, :func:`cast_fan` adds a broad phase for evenly
 spaced rays (a lidar fan): an obstacle can only be hit by the rays that pass
@@ -93,8 +95,20 @@ def hit_box(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, box: Tensor, mask: T
     A ray starting inside a box reports the exit point. A box with both half
     extents 0 is invisible; one with a single zero half extent is a thin wall.
     """
+    return _hit_box_rows(ox, oy, dx, dy, _box_rows(box), mask)
+
+
+def _box_rows(box: Tensor) -> Tensor:
+    """Boxes ``[cx, cy, hx, hy, yaw]`` -> ``[cx, cy, hx, hy, cos yaw, sin yaw]``: the rotation computed
+    once per box, not once per ray and box, when many rays meet the same boxes."""
     cx, cy, hx, hy, yaw = box.unbind(-1)
-    c, s = torch.cos(yaw), torch.sin(yaw)
+    # Stacked component-major (each component a contiguous block), so that compiled loops vectorise.
+    return torch.stack((cx, cy, hx, hy, torch.cos(yaw), torch.sin(yaw)), dim=0).permute(*range(1, box.dim()), 0)
+
+
+def _hit_box_rows(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, rows: Tensor, mask: Tensor) -> Tensor:
+    """:func:`hit_box` on boxes given as :func:`_box_rows`."""
+    cx, cy, hx, hy, c, s = rows.unbind(-1)
     px, py = ox - cx, oy - cy
     lox, loy = c * px + s * py, c * py - s * px
     ldx, ldy = c * dx + s * dy, c * dy - s * dx
@@ -109,7 +123,17 @@ def hit_box(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, box: Tensor, mask: T
     return torch.where((t_near <= t_far) & (t_far >= 0) & visible, t, _INF)
 
 
-KINDS = (("segments", "segment_mask", hit_segment), ("circles", "circle_mask", hit_circle), ("boxes", "box_mask", hit_box))
+def _same(obs: Tensor) -> Tensor:
+    return obs
+
+
+# Per obstacle kind: the world's field, its mask, and the hit function on that kind's rows as
+# returned by its row function (which precomputes per-obstacle terms shared by many rays).
+KINDS = (
+    ("segments", "segment_mask", hit_segment, _same),
+    ("circles", "circle_mask", hit_circle, _same),
+    ("boxes", "box_mask", _hit_box_rows, _box_rows),
+)
 
 
 def bounding_circles(key: str, obs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -123,12 +147,18 @@ def bounding_circles(key: str, obs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return cx, cy, torch.hypot(hx, hy)
 
 
-UNROLL_SLOTS = 32  # sets of at most this many slots are unrolled unless the caller says otherwise
+UNROLL_SLOTS = 32  # compiled: sets of at most this many slots are unrolled unless the caller says otherwise
+EAGER_UNROLL_SLOTS = 4  # the same in eager mode
 
 
-def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask: Tensor, fn, unroll: bool | None) -> Tensor:
-    """Every ray ``(B, R)`` against every slot ``(B, N, w)`` of one kind -> nearest hit ``(B, R)``."""
-    if obs.shape[1] <= UNROLL_SLOTS if unroll is None else unroll:
+def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask: Tensor, fn, rows, unroll: bool | None) -> Tensor:
+    """Every ray ``(B, R)`` against every slot ``(B, N, w)`` of one kind -> nearest hit ``(B, R)``.
+
+    The slots are first turned into the kind's rows (``KINDS``), materialised component-major."""
+    obs = planar_rows(rows(obs))
+    if unroll is None:
+        unroll = obs.shape[1] <= (UNROLL_SLOTS if torch.compiler.is_compiling() else EAGER_UNROLL_SLOTS)
+    if unroll:
         best = torch.full_like(dx, _INF)
         for i in range(obs.shape[1]):
             best = torch.minimum(best, fn(ox, oy, dx, dy, obs[:, i].unsqueeze(1), mask[:, i : i + 1]))
@@ -142,15 +172,15 @@ def cast_rays(origin: Tensor, angles: Tensor, world: World, unroll: bool | None 
     ``inf`` where a ray hits nothing. Every ray against every slot (no broad phase).
 
     ``unroll`` picks the reduction (see the module docstring); ``None`` unrolls the
-    kinds with at most ``UNROLL_SLOTS`` slots.
+    kinds with few slots.
     """
     dx, dy = torch.cos(angles), torch.sin(angles)
     ox, oy = origin[:, 0:1], origin[:, 1:2]  # (B, 1)
     best = torch.full_like(dx, _INF)
-    for key, mkey, fn in KINDS:
+    for key, mkey, fn, rows in KINDS:
         obs, mask = getattr(world, key), getattr(world, mkey)
         if obs.shape[1]:
-            best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, unroll))
+            best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, rows, unroll))
     return best
 
 
@@ -218,18 +248,18 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
     ox, oy = fan.origin[:, 0:1], fan.origin[:, 1:2]
     best = torch.full_like(dx, _INF)
     b = dx.shape[0]
-    for key, mkey, fn in KINDS:
+    for key, mkey, fn, rows in KINDS:
         obs, mask = getattr(world, key), getattr(world, mkey)
         n_slots, width = obs.shape[1], obs.shape[-1]
         if n_slots == 0:
             continue
         if n_slots <= dense_slots:
-            best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, unroll))
+            best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, rows, unroll))
             continue
         with torch.no_grad():
             dense, dense_ok = _first_wide(_wide(fan, key, obs.detach(), mask, window), dense_slots)
-        dense_obs = planar_rows(obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width)))
-        best = torch.minimum(best, _cast_all(ox, oy, dx, dy, dense_obs, dense_ok & mask.gather(1, dense), fn, unroll))
+        dense_obs = obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width))
+        best = torch.minimum(best, _cast_all(ox, oy, dx, dy, dense_obs, dense_ok & mask.gather(1, dense), fn, rows, unroll))
         with torch.no_grad():
             # Window ray indices, kept in floating point (integer division is slow on CPU).
             u = _centre_index(fan, key, obs.detach())
@@ -239,7 +269,7 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
             flat = k.clamp(0, fan.n - 1).reshape(b, -1).long()  # (B, N * (2 window + 1))
         angle = fan.first.reshape(b, 1, 1) + k * fan.spacing  # differentiable in the sensor's heading
         wdx, wdy = torch.cos(angle), torch.sin(angle)
-        hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), wdx, wdy, obs.unsqueeze(2), mask.unsqueeze(-1))
+        hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), wdx, wdy, rows(obs).unsqueeze(2), mask.unsqueeze(-1))
         if not fan.closed:  # window rays past the fan's ends do not exist
             hits = torch.where((k >= 0) & (k <= fan.n - 1), hits, _INF)
         best = best.scatter_reduce(1, flat, hits.reshape(b, -1), "amin", include_self=True)
@@ -264,7 +294,7 @@ def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 
     """``(B,)`` bool: True where :func:`cast_fan` equals the every-ray-every-slot cast, i.e. no
     kind of the env has more than ``dense_slots`` obstacles too wide for their window."""
     ok = torch.ones(fan.origin.shape[0], dtype=torch.bool, device=fan.origin.device)
-    for key, mkey, _ in KINDS:
+    for key, mkey, _, _ in KINDS:
         obs, mask = getattr(world, key), getattr(world, mkey)
         if obs.shape[1] > dense_slots:
             ok &= _wide(fan, key, obs.detach(), mask, window).sum(1) <= dense_slots
