@@ -261,15 +261,16 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
         dense_obs = obs.gather(1, dense.unsqueeze(-1).expand(-1, -1, width))
         best = torch.minimum(best, _cast_all(ox, oy, dx, dy, dense_obs, dense_ok & mask.gather(1, dense), fn, rows, unroll))
         with torch.no_grad():
-            # Window ray indices, kept in floating point (integer division is slow on CPU).
+            # Window ray indices (B, 2 window + 1, N), kept in floating point (integer division is
+            # slow on CPU); the obstacle axis is the last one so that compiled loops run along it.
             u = _centre_index(fan, key, obs.detach())
-            k = torch.round(u).unsqueeze(-1) + torch.arange(-window, window + 1, device=obs.device, dtype=u.dtype)
+            k = torch.round(u).unsqueeze(1) + torch.arange(-window, window + 1, device=obs.device, dtype=u.dtype).view(1, -1, 1)
             if fan.closed:
                 k = k - fan.n * torch.floor(k / fan.n)
-            flat = k.clamp(0, fan.n - 1).reshape(b, -1).long()  # (B, N * (2 window + 1))
+            flat = k.clamp(0, fan.n - 1).reshape(b, -1).long()  # (B, (2 window + 1) * N)
         angle = fan.first.reshape(b, 1, 1) + k * fan.spacing  # differentiable in the sensor's heading
         wdx, wdy = torch.cos(angle), torch.sin(angle)
-        hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), wdx, wdy, rows(obs).unsqueeze(2), mask.unsqueeze(-1))
+        hits = fn(ox.unsqueeze(-1), oy.unsqueeze(-1), wdx, wdy, rows(obs).unsqueeze(1), mask.unsqueeze(1))
         if not fan.closed:  # window rays past the fan's ends do not exist
             hits = torch.where((k >= 0) & (k <= fan.n - 1), hits, _INF)
         best = best.scatter_reduce(1, flat, hits.reshape(b, -1), "amin", include_self=True)
