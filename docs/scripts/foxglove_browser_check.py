@@ -11,7 +11,7 @@ Setup (once; see docs/foxglove.md)::
 
     apt-get install -y chromium nodejs npm
     npm install --prefix ~/.cache/torchnav/foxglove-web \\
-        @foxglove/studio-base@1.48.0 react@17.0.2 react-dom@17.0.2 playwright-core@1.65.1
+        @foxglove/studio-base@1.48.0 react@17.0.2 react-dom@17.0.2 playwright-core@1.61.1
 
 Run::
 
@@ -52,7 +52,7 @@ ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent / "foxglove_browser"
 LAYOUT = ROOT / "docs" / "foxglove_layout.json"
 WEB_DIR = Path(os.environ.get("TORCHNAV_FOXGLOVE_WEB", Path.home() / ".cache" / "torchnav" / "foxglove-web"))
-PACKAGES = {"@foxglove/studio-base": "1.48.0", "react": "17.0.2", "react-dom": "17.0.2", "playwright-core": "1.65.1"}
+PACKAGES = {"@foxglove/studio-base": "1.48.0", "react": "17.0.2", "react-dom": "17.0.2", "playwright-core": "1.61.1"}
 CHROMIUM = os.environ.get("TORCHNAV_CHROMIUM", "/usr/bin/chromium")
 INSTALL_HINT = (
     "apt-get install -y chromium nodejs npm && npm install --prefix "
@@ -65,8 +65,14 @@ def missing_pieces(web_dir: Path = WEB_DIR) -> list[str]:
     missing = []
     if not Path(CHROMIUM).exists():
         missing.append(f"{CHROMIUM} (Debian package chromium)")
-    if shutil.which("node") is None:
+    node = shutil.which("node")
+    if node is None:
         missing.append("node (Debian package nodejs)")
+    else:
+        version = subprocess.run([node, "--version"], capture_output=True, text=True).stdout.strip()
+        major = re.match(r"v(\d+)\.", version)
+        if major is None or int(major[1]) < 18:
+            missing.append(f"node 18 or newer (found {version or 'no version'} at {node})")
     for name, version in PACKAGES.items():
         pkg = web_dir / "node_modules" / name / "package.json"
         if not pkg.exists():
@@ -284,8 +290,9 @@ def failures(result: dict) -> list[str]:
     return out
 
 
-def known_warning(text: str) -> bool:
-    return any(re.search(pattern, text) for pattern, _ in KNOWN_WARNINGS)
+def known_warning(text: str) -> str | None:
+    """Why ``text`` is a harmless warning (``KNOWN_WARNINGS``), or None."""
+    return next((why for pattern, why in KNOWN_WARNINGS if re.search(pattern, text)), None)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -310,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {panel['panel']} settings errors: {panel['errors'] or 'none'}")
         for msg in view["console"]:
             if msg["type"] in ("error", "warning"):
-                print(f"  console {msg['type']}: {msg['text']}")
+                why = known_warning(msg["text"]) if msg["type"] == "warning" else None
+                print(f"  console {msg['type']}: {msg['text']}" + (f"   [known: {why}]" if why else ""))
     for line in result["page_errors"] + result["failed_requests"]:
         print(" ", line)
     bad = failures(result)
