@@ -103,8 +103,9 @@ async function openView(page, args, view, log) {
   const log = [], pageErrors = [], failedRequests = [];
   page.on("console", (m) => log.push({ type: m.type(), text: m.text() }));
   page.on("pageerror", (e) => pageErrors.push(String(e)));
-  // net::ERR_ABORTED is the viewer cancelling a range read it no longer needs (it reads the file
-  // through streamed range requests and drops a stream once it has what it wants): counted apart
+  // net::ERR_ABORTED is a request the page cancelled itself (the viewer's remote-file reader
+  // drops range streams it no longer needs; leaving a page for the next view cancels the rest):
+  // reported apart, as aborted_requests, and not a failure
   const aborted = [];
   page.on("requestfailed", (r) => {
     const why = r.failure()?.errorText;
