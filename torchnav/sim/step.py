@@ -4,7 +4,10 @@
 never synchronises with the host, so it can be differentiated, compiled with
 ``torch.compile`` and captured in CUDA graphs.
 
-    limits -> kinematics -> odometry -> collision -> lidar
+    limits -> kinematics -> odometry -> imu -> movers -> collision -> lidar -> camera
+
+The IMU and the camera run only when ``SimParams.imu`` / ``SimParams.camera`` are
+set; the movers only when the state holds mover slots.
 """
 
 from __future__ import annotations
@@ -12,9 +15,12 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from .camera import camera_depth
 from .geometry import disc_clearance
+from .imu import step_imu
 from .kinematics import apply_limits, integrate, wheels_to_unicycle
 from .lidar import lidar_scan
+from .movers import mover_world, no_movers, step_movers
 from .params import SimParams
 from .state import SimState, World, check_world, planar_world
 
@@ -65,17 +71,25 @@ def step(
     vel = apply_limits(cmd, state.vel, params)
     pose = integrate(state.pose, vel, params)
     odom = step_odometry(state.odom, vel, params, generator)
+    imu, imu_bias = state.imu, state.imu_bias
+    if params.imu is not None:
+        imu, imu_bias = step_imu(imu, imu_bias, vel, state.vel, state.time, params.imu, params.dt, generator)
+    movers = step_movers(state.movers, params.dt)
+    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, state.mover_mask, world, params, generator, unroll)
+
+
+def _sense(pose, vel, odom, time, imu, imu_bias, movers, mover_mask, world, params, generator=None, unroll=None) -> SimState:
+    """The state at ``pose`` with its collision, lidar and camera readings (movers included)."""
+    mw = mover_world(movers, mover_mask) if movers.shape[1] else None
     clearance = disc_clearance(pose, world, params.robot_radius)
+    if mw is not None:
+        clearance = torch.minimum(clearance, disc_clearance(pose, mw, params.robot_radius))
+    ranges = lidar_scan(pose, world, params.lidar, generator, unroll=unroll, movers=mw)
+    depth = camera_depth(pose, world, params.camera, mw) if params.camera is not None else pose.new_zeros(pose.shape[0], 0)
     return SimState(
-        pose=pose,
-        vel=vel,
-        odom=odom,
-        ranges=lidar_scan(pose, world, params.lidar, generator, unroll=unroll),
-        clearance=clearance,
-        collided=clearance <= 0,
-        time=state.time + params.dt,
-        batch_size=state.batch_size,
-        device=state.device,
+        pose=pose, vel=vel, odom=odom, ranges=ranges, clearance=clearance, collided=clearance <= 0, time=time,
+        imu=imu, imu_bias=imu_bias, cam_depth=depth, movers=movers, mover_mask=mover_mask,
+        batch_size=[pose.shape[0]], device=pose.device,
     )
 
 
@@ -92,9 +106,12 @@ def init_state(
     world: World,
     params: SimParams,
     vel: Tensor | None = None,
+    movers: tuple[Tensor, Tensor] | None = None,
 ) -> SimState:
     """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
-    scan and clearance already computed. Odometry starts at the true pose."""
+    scan, clearance and camera depth already computed. Odometry starts at the true pose; the
+    IMU reads zero with zero bias. ``movers`` is ``(movers (B, M, 9), mover_mask (B, M))``
+    (``movers.make_movers``); ``None`` means no moving obstacles."""
     if pose.dim() != 2 or pose.shape[-1] != 3:
         raise ValueError(f"pose must have shape (B, 3), got {tuple(pose.shape)}")
     b = pose.shape[0]
@@ -103,15 +120,15 @@ def init_state(
         vel = pose.new_zeros(b, 2)
     elif vel.shape != (b, 2) or vel.dtype != pose.dtype or vel.device != pose.device:
         raise ValueError(f"vel must be a ({b}, 2) tensor of the pose's dtype and device, got {vel.dtype} {tuple(vel.shape)} on {vel.device}")
-    clearance = disc_clearance(pose, world, params.robot_radius)
-    return SimState(
-        pose=pose,
-        vel=vel,
-        odom=pose.clone(),  # not aliased with pose (aliasing makes torch.compile specialise)
-        ranges=lidar_scan(pose, world, params.lidar),
-        clearance=clearance,
-        collided=clearance <= 0,
-        time=pose.new_zeros(b),
-        batch_size=[b],
-        device=pose.device,
+    if movers is None:
+        movers = no_movers(b, pose)
+    rows, mask = movers
+    if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] != 9 or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
+        raise ValueError(f"movers must be a ({b}, M, 9) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}")
+    if rows.dtype != pose.dtype or rows.device != pose.device:
+        raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device}")
+    n_imu = 0 if params.imu is None else 3
+    return _sense(
+        pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
+        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), rows, mask, world, params,
     )

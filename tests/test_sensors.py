@@ -1,0 +1,194 @@
+"""IMU, camera and moving obstacles of the simulator, against closed forms."""
+
+import math
+
+import pytest
+import torch
+
+from torchnav.sim import (
+    CameraParams, ImuParams, LidarParams, SimParams, camera_depth, camera_image, camera_rays, cast_rays,
+    init_state, make_movers, make_world, step,
+)
+
+
+def _drive(params, world, action, n, b=1, gen=None, movers=None):
+    state = init_state(torch.zeros(b, 3), world, params, movers=movers)
+    states = [state]
+    for _ in range(n):
+        state = step(state, action.expand(b, 2), world, params, generator=gen)
+        states.append(state)
+    return states
+
+
+# -- IMU ---------------------------------------------------------------------------------
+
+def test_imu_off_by_default_gives_empty_readings():
+    s = init_state(torch.zeros(4, 3), make_world(4), SimParams())
+    assert s.imu.shape == (4, 0) and s.imu_bias.shape == (4, 0) and s.cam_depth.shape == (4, 0) and s.movers.shape == (4, 0, 9)
+
+
+@pytest.mark.parametrize("integrator", ["exact", "euler"])
+def test_imu_on_circular_motion(integrator):
+    v, w = 0.5, 0.25  # a circle of radius v / w = 2 m
+    params = SimParams(imu=ImuParams(), integrator=integrator, v_max=1.0)
+    states = _drive(params, make_world(1), torch.tensor([[v, w]]), 40)
+    # First step from rest: the forward acceleration is the jump in speed over dt.
+    assert states[1].imu[0].tolist() == pytest.approx([v / params.dt, v * w, w], rel=1e-5)
+    # Then uniform circular motion: no tangential acceleration, centripetal v^2 / r to the left.
+    r = v / w
+    for s in states[2:]:
+        assert s.imu[0].tolist() == pytest.approx([0.0, v * v / r, w], abs=1e-6)
+    if integrator == "exact":  # the path really is that circle: centre (0, r)
+        xy = torch.stack([s.pose[0, :2] for s in states])
+        assert torch.allclose((xy - torch.tensor([0.0, r])).norm(dim=-1), torch.tensor(r), atol=1e-5)
+
+
+def test_imu_noise_and_bias_walk_statistics():
+    b, n, dt = 4096, 100, 0.1
+    params = SimParams(dt=dt, imu=ImuParams(accel_noise=0.3, gyro_noise=0.2, gyro_bias_walk=0.1))
+    gen = torch.Generator().manual_seed(0)
+    s = _drive(params, make_world(b), torch.tensor([[0.0, 0.5]]), n, b=b, gen=gen)[-1]
+    bias = s.imu_bias
+    assert torch.all(bias[:, :2] == 0)  # no accelerometer walk configured
+    assert bias[:, 2].std().item() == pytest.approx(0.1 * math.sqrt(n * dt), rel=0.05)  # random walk: sigma sqrt(t)
+    err = s.imu - torch.tensor([0.0, 0.0, 0.5]) - bias
+    assert err[:, 0].std().item() == pytest.approx(0.3, rel=0.05)
+    assert err[:, 2].std().item() == pytest.approx(0.2, rel=0.05)
+    # Same seed, same readings; no generator, no noise.
+    again = _drive(params, make_world(b), torch.tensor([[0.0, 0.5]]), n, b=b, gen=torch.Generator().manual_seed(0))[-1]
+    assert torch.equal(again.imu, s.imu)
+    clean = _drive(params, make_world(2), torch.tensor([[0.0, 0.5]]), 3, b=2)[-1]
+    assert torch.allclose(clean.imu, torch.tensor([0.0, 0.0, 0.5]).expand(2, 3))
+
+
+def test_imu_rate_holds_readings_between_samples():
+    params = SimParams(dt=0.1, v_max=2.0, imu=ImuParams(rate=2.0))  # a sample every 5 steps
+    acts = [torch.tensor([[0.1 * (k + 1), 0.0]]) for k in range(12)]
+    world = make_world(1)
+    s = init_state(torch.zeros(1, 3), world, params)
+    seen = []
+    for a in acts:
+        s = step(s, a, world, params)
+        seen.append(s.imu[0, 1].item() + s.imu[0, 0].item())
+    # Ticks at t = 0.5 s and 1.0 s: steps 5 and 10 update, the others hold.
+    changed = [k + 1 for k in range(1, 12) if seen[k] != seen[k - 1]]
+    assert changed == [5, 10]
+
+
+def test_imu_and_camera_params_reject_bad_values():
+    for bad in ({"accel_noise": -0.1}, {"gyro_bias_walk": -1.0}, {"rate": 0.0}, {"gyro_noise": math.nan}):
+        with pytest.raises(ValueError, match="imu"):
+            ImuParams(**bad)
+    for bad in ({"n_cols": 0}, {"n_rows": 0}, {"fov": math.pi}, {"max_range": 0.0}, {"wall_color": (0, 0, 300)}, {"height": -1.0}):
+        with pytest.raises(ValueError, match="camera"):
+            CameraParams(**bad)
+
+
+# -- camera --------------------------------------------------------------------------------
+
+def test_camera_depth_of_a_facing_wall_is_flat():
+    """A wall perpendicular to the optical axis is at the same depth in every column."""
+    cam = CameraParams(n_cols=64, fov=math.radians(90))
+    world = make_world(1, segments=[[3.0, -10.0, 3.0, 10.0]])
+    depth = camera_depth(torch.zeros(1, 3), world, cam)
+    assert torch.allclose(depth, torch.full((1, 64), 3.0), atol=1e-5)
+    assert camera_depth(torch.tensor([[0.0, 0.0, math.pi]]), world, cam).eq(cam.max_range).all()  # looking away: misses
+
+
+def test_camera_depth_matches_lidar_on_the_same_rays():
+    g = torch.Generator().manual_seed(1)
+    b = 16
+    circles = torch.cat((torch.rand(6, 2, generator=g) * 8 - 4, torch.rand(6, 1, generator=g) * 0.5 + 0.2), 1)
+    boxes = torch.cat((torch.rand(4, 2, generator=g) * 8 - 4, torch.rand(4, 2, generator=g) * 0.4 + 0.1, torch.rand(4, 1, generator=g) * 6), 1)
+    world = make_world(b, segments=[[-5, -5, 5, -5], [5, -5, 5, 5], [5, 5, -5, 5], [-5, 5, -5, -5]], circles=circles, boxes=boxes)
+    pose = torch.cat((torch.rand(b, 2, generator=g) * 2 - 1, torch.rand(b, 1, generator=g) * 6 - 3), 1)
+    cam = CameraParams(n_cols=48, fov=1.5, max_range=20.0, offset=(0.1, 0.0, 0.2))
+    origin, angles, local = camera_rays(pose, cam)
+    lidar = cast_rays(origin, angles, world)
+    assert torch.isfinite(lidar).all()
+    depth = camera_depth(pose, world, cam)
+    assert torch.allclose(depth, lidar * torch.cos(local), atol=1e-5)
+    depth2, rgb = camera_image(pose, world, cam)
+    assert torch.equal(depth2, depth) and rgb.shape == (b, cam.n_rows, 48, 3) and rgb.dtype == torch.uint8
+    # Differentiable in the pose.
+    p = pose.clone().requires_grad_(True)
+    camera_depth(p, world, cam).sum().backward()
+    assert torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0
+
+
+def test_camera_image_rows_of_a_wall():
+    """A 1 m wall at 2 m seen from 0.3 m: exactly the rows whose ray meets it between 0 and 1 m."""
+    cam = CameraParams(n_cols=8, n_rows=64, fov=math.radians(90), wall_height=1.0, height=0.3)
+    world = make_world(1, segments=[[2.0, -50.0, 2.0, 50.0]])
+    _, rgb = camera_image(torch.zeros(1, 3), world, cam)
+    col = rgb[0, :, 3].to(torch.int64)
+    f = cam.focal
+    tan_e = [(32 - i - 0.5) / f for i in range(64)]
+    wall_rows = [i for i in range(64) if 0.0 <= 0.3 + 2.0 * tan_e[i] <= 1.0]
+    sky = torch.tensor(cam.sky_color)
+    is_wall = [bool((col[i] * 1.0 - torch.tensor(cam.wall_color) / (1 + 0.08 * 2.0)).abs().max() <= 1) for i in range(64)]
+    assert [i for i in range(64) if is_wall[i]] == wall_rows
+    assert torch.equal(col[0], sky) and all(torch.equal(col[i], sky) for i in range(wall_rows[0]))
+    assert col[-1, 0] < cam.sky_color[0]  # floor at the bottom
+
+
+# -- moving obstacles -------------------------------------------------------------------
+
+def test_moving_circle_lidar_return_matches_geometry():
+    r, vy, dt = 0.5, 0.3, 0.1
+    lidar = LidarParams(n_rays=360, fov=2 * math.pi, max_range=20.0)
+    params = SimParams(dt=dt, lidar=lidar)
+    movers = make_movers(1, [[4.0, -0.45, 0.0, vy, r]])
+    states = _drive(params, make_world(1), torch.zeros(1, 2), 30, movers=movers)
+    ahead = lidar.n_rays // 2  # ray along +x
+    for k, s in enumerate(states):
+        cy = -0.45 + vy * dt * k
+        assert s.movers[0, 0, 1].item() == pytest.approx(cy, abs=1e-5)
+        want = 4.0 - math.sqrt(r * r - cy * cy) if abs(cy) < r else lidar.max_range
+        assert s.ranges[0, ahead].item() == pytest.approx(want, abs=1e-4)
+        assert s.clearance[0].item() == pytest.approx(math.hypot(4.0, cy) - r - params.robot_radius, abs=1e-5)
+
+
+def test_mover_collides_with_robot():
+    params = SimParams(dt=0.1)
+    movers = make_movers(1, [[2.0, 0.0, -1.0, 0.0, 0.3]])
+    states = _drive(params, make_world(1), torch.zeros(1, 2), 20, movers=movers)
+    hit = [k for k, s in enumerate(states) if s.collided[0]]
+    assert hit and hit[0] == 15  # centre at 2 - 0.1 k reaches 0.5 m (0.3 + 0.2) at k = 15
+    assert states[14].clearance[0].item() == pytest.approx(0.1, abs=1e-5)
+
+
+def test_bouncing_movers_stay_in_region_and_keep_speed():
+    g = torch.Generator().manual_seed(3)
+    m = 8
+    xy = torch.rand(m, 2, generator=g) * 2 - 1
+    v = torch.randn(m, 2, generator=g)
+    discs = torch.cat((xy, v, torch.full((m, 1), 0.3)), 1)
+    movers = make_movers(2, discs, region=(-2.0, -1.5, 2.0, 1.5))
+    states = _drive(SimParams(), make_world(2), torch.zeros(1, 2), 200, b=2, movers=movers)
+    for s in states:
+        x, y, vx, vy, rad = s.movers[..., :5].unbind(-1)
+        assert (x - rad >= -2.0 - 1e-5).all() and (x + rad <= 2.0 + 1e-5).all()
+        assert (y - rad >= -1.5 - 1e-5).all() and (y + rad <= 1.5 + 1e-5).all()
+        assert torch.allclose(torch.stack((vx, vy), -1).norm(dim=-1), v.norm(dim=-1).expand(2, m), atol=1e-5)
+    assert not torch.equal(states[-1].movers[..., 2:4], states[0].movers[..., 2:4])  # they did bounce
+
+
+def test_camera_sees_movers():
+    cam = CameraParams(n_cols=1, fov=0.1)
+    params = SimParams(camera=cam)
+    movers = make_movers(1, [[3.0, 0.0, -0.5, 0.0, 0.5]])
+    states = _drive(params, make_world(1), torch.zeros(1, 2), 4, movers=movers)
+    for k, s in enumerate(states):
+        assert s.cam_depth[0, 0].item() == pytest.approx(2.5 - 0.05 * k, abs=1e-5)
+
+
+def test_make_movers_rejects_bad_input():
+    with pytest.raises(ValueError, match="radius"):
+        make_movers(1, [[0.0, 0.0, 1.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="region"):
+        make_movers(1, [[0.0, 0.0, 1.0, 0.0, 0.5]], region=(1.0, 0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="inside"):
+        make_movers(1, [[0.0, 0.0, 1.0, 0.0, 0.5]], region=(-0.2, -1.0, 1.0, 1.0))
+    with pytest.raises(ValueError, match="shape"):
+        make_movers(1, [[0.0, 0.0, 1.0]])
