@@ -192,3 +192,32 @@ def test_make_movers_rejects_bad_input():
         make_movers(1, [[0.0, 0.0, 1.0, 0.0, 0.5]], region=(-0.2, -1.0, 1.0, 1.0))
     with pytest.raises(ValueError, match="shape"):
         make_movers(1, [[0.0, 0.0, 1.0]])
+
+
+# -- the task's observation options ------------------------------------------------------
+
+def test_task_observation_with_imu_and_camera():
+    from torchnav.config import ConfigError
+    from torchnav.envs import make_env
+
+    env = make_env("arena", num_envs=8, imu={"enabled": True, "gyro_noise": 0.01}, camera={"enabled": True, "n_cols": 16},
+                   observation={"imu": True, "camera": True})
+    td = env.reset()
+    assert td["observation"].shape == (8, 20 + 4 + 3 + 16)
+    td = env.rand_step(td)
+    obs = td["next", "observation"]
+    s = env._state.sim
+    assert obs.shape == (8, 43) and s.imu.shape == (8, 3) and s.cam_depth.shape == (8, 16)
+    cfg = env.cfg
+    assert torch.allclose(obs[:, 24:27], s.imu * torch.tensor([1 / (cfg.robot.v_max * cfg.robot.omega_max)] * 2 + [1 / cfg.robot.omega_max]))
+    assert torch.allclose(obs[:, 27:], s.cam_depth / cfg.camera.max_range)
+    # The default config observes exactly what it did before.
+    assert make_env("arena", num_envs=2).reset()["observation"].shape == (2, 24)
+    with pytest.raises(ConfigError, match="observation.imu needs imu.enabled"):
+        make_env("arena", num_envs=2, observation={"imu": True})
+    with pytest.raises(ConfigError, match="camera.n_cols"):
+        make_env("arena", num_envs=2, camera={"enabled": True, "n_cols": 0})
+    with pytest.raises(ConfigError, match="imu.accel_noise"):
+        make_env("arena", num_envs=2, imu={"enabled": True, "accel_noise": -1.0})
+    with pytest.raises(ConfigError, match="unknown key"):
+        make_env("arena", num_envs=2, camera={"colums": 3})

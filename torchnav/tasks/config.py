@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from ..config import ConfigError, from_dict
-from ..sim import LidarParams, SimParams
+from ..sim import CameraParams, ImuParams, LidarParams, SimParams
 
 CURRICULUM_MODES = ("growth", "success", "off")
 ACTION_MODES = ("continuous", "discrete")
@@ -46,6 +46,31 @@ class LidarConfig:
 
 
 @dataclass(frozen=True)
+class ImuConfig:
+    """The robot's IMU (docs/sim.md#imu): body-frame acceleration and yaw rate."""
+
+    enabled: bool = False  # simulate the IMU (state.imu); needed by observation.imu
+    accel_noise: float = 0.0  # m/s^2, white-noise std per reading
+    gyro_noise: float = 0.0  # rad/s, white-noise std per reading
+    accel_bias_walk: float = 0.0  # m/s^2 per sqrt(s), bias random walk
+    gyro_bias_walk: float = 0.0  # rad/s per sqrt(s), bias random walk
+    rate: float = math.inf  # Hz, sample-and-hold rate (inf: every step)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """A forward ray-cast camera (docs/sim.md#camera): a depth row in the step, RGB on demand."""
+
+    enabled: bool = False  # compute the depth row every step (state.cam_depth); needed by observation.camera
+    n_cols: int = 64  # image width in pixels = depth readings
+    n_rows: int = 48  # image height in pixels (RGB only)
+    fov_deg: float = 90.0  # horizontal field of view, degrees (0, 180)
+    max_range: float = 10.0  # m, depth of misses and the depth row's cap
+    height: float = 0.3  # m above the floor
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose on the robot: m, m, rad
+
+
+@dataclass(frozen=True)
 class CurriculumConfig:
     """The bootstrapped goal radius: goals at a distance in [min_radius, radius] from the start."""
 
@@ -72,6 +97,8 @@ class ObservationConfig:
     normalize: bool = True  # scale lidar and distances by max_range, angles by pi, speeds by limits
     history: int = 1  # stack the last k observations
     goal_from_odom: bool = False  # goal vector from the drifting odometry instead of the true pose
+    imu: bool = False  # append the IMU reading [a_x, a_y, yaw rate] (needs imu.enabled)
+    camera: bool = False  # append the camera's depth row, n_cols values (needs camera.enabled)
 
 
 @dataclass(frozen=True)
@@ -115,6 +142,8 @@ class NavConfig:
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
     robot: RobotConfig = field(default_factory=RobotConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
@@ -135,6 +164,8 @@ class NavConfig:
             (self.action.mode in ACTION_MODES, f"action.mode must be one of {ACTION_MODES}, got {self.action.mode!r}"),
             (len(self.action.discrete_set) >= 2, "action.discrete_set needs at least 2 actions"),
             (self.observation.history >= 1, "observation.history must be >= 1"),
+            (not self.observation.imu or self.imu.enabled, "observation.imu needs imu.enabled: true"),
+            (not self.observation.camera or self.camera.enabled, "observation.camera needs camera.enabled: true"),
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),
             (self.reset.pool >= 0, "reset.pool must be >= 0"),
             (isinstance(self.reset.reuse, int) and self.reset.reuse >= 1, f"reset.reuse must be an int >= 1, got {self.reset.reuse!r}"),
@@ -158,8 +189,16 @@ class NavConfig:
         return from_dict(cls, data, where)
 
     def sim_params(self) -> SimParams:
-        r, li = self.robot, self.lidar
+        r, li, im, ca = self.robot, self.lidar, self.imu, self.camera
         try:
+            imu = ImuParams(
+                accel_noise=im.accel_noise, gyro_noise=im.gyro_noise, accel_bias_walk=im.accel_bias_walk,
+                gyro_bias_walk=im.gyro_bias_walk, rate=im.rate,
+            ) if im.enabled else None
+            camera = CameraParams(
+                n_cols=ca.n_cols, n_rows=ca.n_rows, fov=math.radians(ca.fov_deg), max_range=ca.max_range,
+                height=ca.height, offset=ca.offset,
+            ) if ca.enabled else None
             lidar = LidarParams(
                 n_rays=li.n_rays, fov=math.radians(li.fov_deg), min_range=li.min_range, max_range=li.max_range,
                 offset=li.offset, n_sectors=li.n_sectors, noise_std=li.noise_std,
@@ -170,9 +209,10 @@ class NavConfig:
                 v_min=0.0 if self.action.forward_only else -r.v_max, v_max=r.v_max, omega_max=r.omega_max,
                 lin_acc_max=r.lin_acc_max, ang_acc_max=r.ang_acc_max, integrator=r.integrator,
                 odom_v_noise=r.odom_v_noise, odom_omega_noise=r.odom_omega_noise, lidar=lidar,
+                imu=imu, camera=camera,
             )
         except ValueError as e:
-            raise ConfigError(f"robot/lidar: {e}") from e
+            raise ConfigError(f"robot/lidar/imu/camera: {e}") from e
 
 
 def _check_family(name: str) -> None:

@@ -68,7 +68,9 @@ class NavTask(BatchedTask):
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)
         self.n_sectors = cfg.lidar.n_sectors
-        self.obs_dim = self.n_sectors + 4
+        self.n_imu = 3 if cfg.observation.imu else 0
+        self.n_depth = cfg.camera.n_cols if cfg.observation.camera else 0
+        self.obs_dim = self.n_sectors + 4 + self.n_imu + self.n_depth
         self.obs_size = self.obs_dim * cfg.observation.history
         if self.families:
             self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
@@ -110,6 +112,9 @@ class NavTask(BatchedTask):
         if not self.cfg.observation.normalize:
             return torch.ones(self.obs_dim, dtype=self.dtype, device=self.device)
         s = [1.0 / li.max_range] * self.n_sectors + [1.0 / li.max_range, 1.0 / math.pi, 1.0 / r.v_max, 1.0 / max(r.omega_max, 1e-9)]
+        # IMU: accelerations by the largest centripetal one (v_max * omega_max), yaw rate by omega_max.
+        s += [1.0 / max(r.v_max * r.omega_max, 1e-9)] * 2 + [1.0 / max(r.omega_max, 1e-9)] if self.n_imu else []
+        s += [1.0 / self.cfg.camera.max_range] * self.n_depth
         return torch.tensor(s, dtype=self.dtype, device=self.device)
 
     def goal_vector(self, pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
@@ -121,11 +126,17 @@ class NavTask(BatchedTask):
         return dist, bearing
 
     def observe(self, sim: SimState, goal: Tensor) -> Tensor:
-        """One observation ``(B, D)``: lidar sectors, goal distance and bearing, and (v, omega)."""
+        """One observation ``(B, D)``: lidar sectors, goal distance and bearing, (v, omega), then the
+        IMU reading (``observation.imu``) and the camera's depth row (``observation.camera``)."""
         sectors = sectorize(sim.ranges, self.n_sectors)
         pose = sim.odom if self.cfg.observation.goal_from_odom else sim.pose
         dist, bearing = self.goal_vector(pose, goal)
-        obs = torch.cat((sectors, dist[:, None], bearing[:, None], sim.vel), dim=-1)
+        parts = [sectors, dist[:, None], bearing[:, None], sim.vel]
+        if self.n_imu:
+            parts.append(sim.imu)
+        if self.n_depth:
+            parts.append(sim.cam_depth)
+        obs = torch.cat(parts, dim=-1)
         return obs * self._obs_scale
 
     # -- reset ----------------------------------------------------------------------
