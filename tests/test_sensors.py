@@ -221,3 +221,35 @@ def test_task_observation_with_imu_and_camera():
         make_env("arena", num_envs=2, imu={"enabled": True, "accel_noise": -1.0})
     with pytest.raises(ConfigError, match="unknown key"):
         make_env("arena", num_envs=2, camera={"colums": 3})
+
+
+# -- recording -----------------------------------------------------------------------------
+
+def test_imu_and_camera_are_recorded_with_schemas(tmp_path):
+    import base64
+    import json
+
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from torchnav.envs import make_env
+    from torchnav.record import EpisodeRecorder, JsonDecoderFactory, record_rollout, validate
+
+    env = make_env("arena", num_envs=3, max_steps=50, imu={"enabled": True}, camera={"enabled": True, "n_cols": 24, "n_rows": 10})
+    path = tmp_path / "s.mcap"
+    with EpisodeRecorder(path, env, envs=(1,)) as rec:
+        record_rollout(env, None, 4, rec)
+    last = {}
+    with open(path, "rb") as f:
+        for schema, channel, _, msg in make_reader(f, decoder_factories=[JsonDecoderFactory()]).iter_decoded_messages():
+            validate(msg, json.loads(schema.data))
+            last[channel.topic] = (schema.name, msg)
+    assert last["/env1/imu"][0] == "torchnav.Imu" and last["/env1/camera"][0] == "foxglove.RawImage"
+    sim = env._state.sim[1]
+    imu = last["/env1/imu"][1]
+    assert [imu["linear_acceleration"]["x"], imu["linear_acceleration"]["y"], imu["angular_velocity"]["z"]] == pytest.approx(sim.imu.tolist(), abs=1e-5)
+    img = last["/env1/camera"][1]
+    assert (img["width"], img["height"], img["encoding"]) == (24, 10, "rgb8")
+    assert len(base64.b64decode(img["data"])) == 24 * 10 * 3
+    depth = np.frombuffer(base64.b64decode(last["/env1/camera_depth"][1]["data"]), dtype="<f4")
+    assert np.allclose(depth, sim.cam_depth.numpy(), atol=1e-5)
