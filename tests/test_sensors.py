@@ -253,3 +253,64 @@ def test_imu_and_camera_are_recorded_with_schemas(tmp_path):
     assert len(base64.b64decode(img["data"])) == 24 * 10 * 3
     depth = np.frombuffer(base64.b64decode(last["/env1/camera_depth"][1]["data"]), dtype="<f4")
     assert np.allclose(depth, sim.cam_depth.numpy(), atol=1e-5)
+
+
+# -- moving obstacles in maps and the task -------------------------------------------------
+
+MOVING_MAP = """
+name: moving
+size: [10.0, 10.0]
+walls: boundary
+random_boxes: {count: 4, size_x: [0.4, 0.6], size_y: [0.3, 0.5], clearance: 1.5, margin: 0.1}
+moving_circles: {count: 4, radius: [0.2, 0.3], speed: [0.2, 0.5], clearance: 1.5, margin: 0.1}
+"""
+
+
+def test_task_places_movers_with_clearance_and_collides_with_them(tmp_path):
+    from torchnav.envs import make_env
+    from torchnav.sim import points_clearance
+
+    path = tmp_path / "moving.yaml"
+    path.write_text(MOVING_MAP)
+    env = make_env(str(path), num_envs=512, seed=3)
+    env.reset()
+    s = env._state
+    m, mask = s.sim.movers, s.sim.mover_mask
+    assert m.shape == (512, 4, 9) and mask.float().mean() > 0.99
+    r = m[..., 4]
+    assert ((r >= 0.2) & (r <= 0.3))[mask].all()
+    speed = m[..., 2:4].norm(dim=-1)
+    assert ((speed >= 0.2 - 1e-5) & (speed <= 0.5 + 1e-5))[mask].all()
+    assert ((m[..., :2] - s.start[:, None, :2]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
+    assert ((m[..., :2] - s.goal[:, None]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
+    assert (points_clearance(m[..., :2], s.world) - r)[mask].min() >= 0.1 - 1e-4  # walls and this episode's boxes
+    for i in range(4):
+        for j in range(i):
+            gap = (m[:, i, :2] - m[:, j, :2]).norm(dim=-1) - r[:, i] - r[:, j]
+            assert gap[mask[:, i] & mask[:, j]].min() >= 0.1 - 1e-4
+    assert (m[..., 5:] == torch.tensor([-5.0, -5.0, 5.0, 5.0])).all()  # bounce inside the map
+    # The task's collision flag is the simulator's, which includes the movers: drive a mover onto the robot.
+    sim = s.sim
+    hit = sim.movers.clone()
+    hit[:, 0, :2] = sim.pose[:, :2] + torch.tensor([0.45, 0.0])
+    hit[:, 0, 2:4] = 0.0
+    hit[:, 0, 4] = 0.3
+    state = s.clone()
+    state.sim.movers = hit
+    state.sim.mover_mask = torch.ones_like(mask)
+    _, out = env.task.step(state, torch.tensor([[-1.0, 0.0]]).expand(512, 2))
+    assert out["collision"].all()
+
+
+def test_map_rejects_bad_moving_circles(tmp_path):
+    from torchnav.maps import MapError, parse_map
+
+    base = {"size": [10.0, 10.0], "walls": ["boundary"]}
+    for bad, key in (({"count": 2, "radius": [0.2, 0.3]}, "speed"), ({"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "motion": "zigzag"}, "motion"),
+                     ({"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "region": [1.0, 0.0, 0.0, 1.0]}, "region"),
+                     ({"count": 2, "radius": [0.2, 0.3], "speed": [-0.1, 0.2]}, "speed"),
+                     ({"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "sped": 1}, "sped")):
+        with pytest.raises(MapError, match=key):
+            parse_map({**base, "moving_circles": bad})
+    spec = parse_map({**base, "moving_circles": {"count": 3, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "region": [-2, -2, 2, 2], "motion": "constant"}})
+    assert spec.moving_circles.count == 3 and spec.moving_circles.region == (-2.0, -2.0, 2.0, 2.0)

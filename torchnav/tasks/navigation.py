@@ -22,7 +22,7 @@ from .base import BatchedTask
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
 from .rewards import resolve_weights, reward_terms
-from .sampling import place_random_objects, sample_goals, sample_starts
+from .sampling import place_movers, place_random_objects, sample_goals, sample_starts
 
 
 @tensorclass
@@ -65,6 +65,8 @@ class NavTask(BatchedTask):
         if self.spec is not None:  # a map with no room for a start or a goal is refused before any episode
             check_room(self.spec, cfg.robot.radius + cfg.reset.start_clearance, cfg.reset.goal_clearance)
         self.params = cfg.sim_params()
+        # Moving discs of the map (placed at every reset); procedural worlds have none.
+        self.n_movers = self.spec.moving_circles.count if self.spec is not None and self.spec.moving_circles else 0
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)
         self.n_sectors = cfg.lidar.n_sectors
@@ -157,7 +159,11 @@ class NavTask(BatchedTask):
             )
             family = torch.zeros(n, dtype=torch.int64, device=self.device)
             difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
-        sim = init_state(start, world, self.params)
+        movers = None
+        if self.n_movers:
+            movers = place_movers(world, self.spec, start[:, :2], goal, rc.candidates, gen,
+                                  start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance)
+        sim = init_state(start, world, self.params, movers=movers)
         obs = self.observe(sim, goal)
         dist, _ = self.goal_vector(sim.pose, goal)
         zeros = torch.zeros(n, dtype=self.dtype, device=self.device)
