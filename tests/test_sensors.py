@@ -336,3 +336,50 @@ def test_replay_draws_movers_and_camera(tmp_path):
     assert np.allclose(fr["movers"][2][:, :2], fr["movers"][1][:, :2] + env.cfg.robot.dt * fr["movers"][2][:, 2:4], atol=1e-4)  # they move
     gif = render_episode(rec, ep, tmp_path / "m.gif", dpi=40)
     assert gif.stat().st_size > 0
+
+
+# -- patrols and pedestrians -----------------------------------------------------------------
+
+def test_patrol_follows_its_waypoints_at_its_speed():
+    """A patrol on a 1 m square at 0.5 m/s: 20 steps per side, exactly on the path, cyclically."""
+    square = [[1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.0, 0.0]]
+    movers = make_movers(1, [[0.0, 0.0, 0.5, 0.0, 0.2]], waypoints=[square])
+    world = make_world(1)
+    params = SimParams()
+    states = _drive(params, world, torch.zeros(1, 2), 100, movers=movers)
+    corners = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
+    for k, s in enumerate(states):
+        side, along = divmod(k % 80, 20)
+        (ax, ay), (bx, by) = corners[side], corners[(side + 1) % 4]
+        want = (ax + (bx - ax) * along / 20, ay + (by - ay) * along / 20)
+        assert s.movers[0, 0, :2].tolist() == pytest.approx(want, abs=1e-4), k
+    assert states[30].mover_plan[0, 0, 2].item() == 1  # heading for the second waypoint
+
+
+def test_pedestrians_avoid_each_other_and_the_robot():
+    """Two pedestrians walking head-on, slightly offset, and one walking through a standing robot:
+    nobody touches, and everybody still gets past."""
+    discs = [[-3.0, 0.05, 0.6, 0.0, 0.25], [3.0, -0.05, -0.6, 0.0, 0.25], [0.0, -3.0, 0.0, 0.6, 0.25]]
+    paths = [[[3.0, 0.0]], [[-3.0, 0.0]], [[0.0, 3.0]]]
+    movers = make_movers(1, discs, waypoints=paths, pedestrians=True)
+    params = SimParams()
+    world = make_world(1)
+    robot = torch.tensor([[0.0, 1.5, 0.0]])
+    state = init_state(robot, world, params, movers=movers)
+    closest, robot_gap = math.inf, math.inf
+    for _ in range(150):
+        state = step(state, torch.zeros(1, 2), world, params)
+        p = state.movers[0, :, :2]
+        closest = min(closest, (p[0] - p[1]).norm().item() - 0.5)
+        robot_gap = min(robot_gap, state.clearance[0].item())
+    assert closest > 0 and robot_gap > 0
+    p = state.movers[0, :, :2]
+    assert p[0, 0] > 2.5 and p[1, 0] < -2.5 and p[2, 1] > 2.5  # they got where they were going
+    # Patrols do not steer: the same head-on patrols would meet.
+    patrols = make_movers(1, discs[:2], waypoints=paths[:2])
+    s = init_state(torch.tensor([[0.0, 5.0, 0.0]]), world, params, movers=patrols)
+    touched = False
+    for _ in range(80):
+        s = step(s, torch.zeros(1, 2), world, params)
+        touched |= (s.movers[0, 0, :2] - s.movers[0, 1, :2]).norm().item() < 0.5
+    assert touched

@@ -28,7 +28,7 @@ def main() -> None:
         circles=[[2.0, 1.2, 0.35], [3.2, -1.5, 0.5]],
         boxes=[[1.5, -0.6, 0.3, 0.25, 0.4], [3.5, 0.6, 0.25, 0.6, 0.0]],
     )
-    movers, mask = make_movers(1, [[2.6, -0.1, 0.0, 0.3, 0.25]])
+    movers, mask, _ = make_movers(1, [[2.6, -0.1, 0.0, 0.3, 0.25]])
     cam = CameraParams(n_cols=160, n_rows=90, fov=math.radians(90), height=0.3)
     pose = torch.tensor([[-1.5, 0.0, 0.0]])
     depth, rgb = camera_image(pose, world, cam, mover_world(movers, mask))

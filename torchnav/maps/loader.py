@@ -201,7 +201,7 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
 
 def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> MovingCircles:
     k = "moving_circles"
-    v = check_mapping(ctx, v, k, ("count", "radius", "speed"), ("motion", "region", "clearance", "margin"))
+    v = check_mapping(ctx, v, k, ("count", "radius", "speed"), ("motion", "region", "clearance", "margin", "waypoints"))
     d = MovingCircles.__dataclass_fields__
     motion = v.get("motion", d["motion"].default)
     if motion not in MOTIONS:
@@ -219,7 +219,10 @@ def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> MovingCircle
         motion=motion, region=region,
         clearance=check_number(ctx, v.get("clearance", d["clearance"].default), f"{k}.clearance", "nonneg"),
         margin=check_number(ctx, v.get("margin", d["margin"].default), f"{k}.margin", "nonneg"),
+        waypoints=check_count(ctx, v.get("waypoints", d["waypoints"].default), f"{k}.waypoints", 64),
     )
+    if mc.waypoints < 1:
+        raise ctx.fail(f"{k}.waypoints", f"expected an integer in [1, 64], got {show(mc.waypoints)}")
     w, h = (region[2] - region[0], region[3] - region[1]) if region else size
     _fits(ctx, f"{k}.radius", 2 * mc.radius[1], (w, h))
     return mc

@@ -41,16 +41,18 @@ class RandomCircles:
     margin: float = 0.1  # m, min gap to fixed obstacles, walls and other random objects
 
 
-MOTIONS = ("bounce", "constant")
+MOTIONS = ("bounce", "constant", "patrol", "pedestrian")
 
 
 @dataclass(frozen=True)
 class MovingCircles:
     """Moving discs the task places at random on every reset (``moving_circles`` in YAML).
 
-    Each gets a uniformly random heading and a speed in ``speed``; with ``motion: bounce``
-    it bounces inside ``region`` (default: the whole map), with ``constant`` it drives
-    straight on (through walls, out of the map)."""
+    Each gets a speed in ``speed``. ``bounce``: a uniformly random heading, bouncing inside
+    ``region`` (default: the whole map); ``constant``: the same, driving straight on (through
+    walls, out of the map); ``patrol``: cycles through ``waypoints`` random points of the
+    region; ``pedestrian``: the same, steering around the other movers and the robot
+    (``torchnav/sim/movers.py``)."""
 
     count: int  # movers per env
     radius: tuple[float, float]  # m, (min, max)
@@ -59,6 +61,7 @@ class MovingCircles:
     region: tuple[float, float, float, float] | None = None  # (xmin, ymin, xmax, ymax) m; None: the map's bounds
     clearance: float = 1.0  # m, min distance from the robot start and from the goal at reset
     margin: float = 0.1  # m, min gap to obstacles, walls and other movers at reset
+    waypoints: int = 4  # random waypoints per mover ("patrol", "pedestrian")
 
 
 @dataclass(frozen=True)

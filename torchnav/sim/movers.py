@@ -5,26 +5,59 @@ with a ``(B, M)`` bool mask; the columns are ``MOVER_FIELDS``:
 
     x, y (m), vx, vy (m/s), radius (m), xmin, ymin, xmax, ymax (m: the region)
 
-A mover drives at constant velocity; inside a finite region it bounces off the
-region's edges (its disc stays inside: the position is mirrored at ``edge +- radius``
-and that velocity component flips). An unbounded region (``+-inf``, the default)
-gives plain constant-velocity motion. Masked slots move too but are seen by
-nothing. The lidar, the camera and collision treat a mover like a static circle
-at its position after the step.
+Three kinds of motion:
+
+* **ballistic** (the default): constant velocity; inside a finite region the mover
+  bounces off the region's edges (its disc stays inside: the position is mirrored at
+  ``edge +- radius`` and that velocity component flips). An unbounded region
+  (``+-inf``) gives plain constant-velocity motion.
+* **patrol**: drives at its cruising speed straight to its next waypoint, and on
+  reaching it (within one step's travel) heads for the following one, cyclically.
+* **pedestrian**: walks towards its next waypoint like a patrol, but steers: its
+  velocity relaxes towards the desired one over ``PED_TAU`` s and is pushed away from
+  the other movers and the robot by exponential social forces
+  (``PED_PUSH * exp((r_i + r_j - d_ij) / PED_RANGE)``, Helbing-Molnar), its speed capped
+  at ``PED_MAX_SPEED`` times the cruising speed. It reaches a waypoint within ``PED_ARRIVE`` m.
+
+Patrols and pedestrians keep their plan in ``SimState.mover_plan`` ``(B, M, 4 + 2P)``:
+``kind`` (``BALLISTIC``, ``PATROL``, ``PEDESTRIAN``), cruising ``speed`` (m/s), the
+index of the next waypoint, the number of waypoints ``n`` (1 to ``P``), then ``P``
+waypoints ``x, y`` (m). Without any patrol or pedestrian the plan is ``(B, M, 0)`` and
+costs nothing. Every mover also applies its region (unbounded for most patrols).
+Masked slots move too but are seen by nothing. The lidar, the camera and collision
+treat a mover like a static circle at its position after the step; movers pass
+through walls and static obstacles.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import torch
 from torch import Tensor
 
+from .math import safe_norm
 from .state import World
 
 MOVER_FIELDS = ("x", "y", "vx", "vy", "radius", "xmin", "ymin", "xmax", "ymax")
 N_MOVER_FIELDS = len(MOVER_FIELDS)
+BALLISTIC, PATROL, PEDESTRIAN = 0, 1, 2
+PLAN_FIELDS = ("kind", "speed", "target", "n")  # then P waypoints (x, y)
+PED_TAU = 0.5  # s, relaxation time of a pedestrian's velocity towards the desired one
+PED_PUSH = 2.0  # m/s^2, social force at contact
+PED_RANGE = 0.3  # m, decay length of the social force
+PED_MAX_SPEED = 1.3  # times the cruising speed
+PED_ARRIVE = 0.3  # m, a pedestrian has reached a waypoint this close to it
+
+
+class Movers(NamedTuple):
+    """Moving obstacles of a batch: ``rows`` ``(B, M, 9)``, ``mask`` ``(B, M)`` bool and
+    ``plan`` ``(B, M, 4 + 2P)`` or ``(B, M, 0)`` (module docstring)."""
+
+    rows: Tensor
+    mask: Tensor
+    plan: Tensor
 
 
 def make_movers(
@@ -33,11 +66,16 @@ def make_movers(
     region: Sequence[float] | None = None,
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
-) -> tuple[Tensor, Tensor]:
+    *,
+    waypoints: Sequence[Sequence[Sequence[float]]] | None = None,
+    pedestrians: bool = False,
+) -> Movers:
     """The same movers in every env: ``discs`` ``(M, 5)`` rows ``[x, y, vx, vy, radius]``,
     bouncing inside ``region`` ``(xmin, ymin, xmax, ymax)`` (``None``: unbounded, constant velocity).
 
-    Returns ``movers`` ``(B, M, 9)`` and ``mover_mask`` ``(B, M)`` (all True)."""
+    ``waypoints``, one list of ``[x, y]`` per disc, makes the discs with a non-empty list
+    patrols (or, with ``pedestrians=True``, pedestrians) whose cruising speed is the
+    norm of their ``(vx, vy)``; discs with an empty list stay ballistic."""
     d = torch.as_tensor(discs if discs is not None and len(discs) else [], dtype=dtype, device=device)
     d = d.reshape(0, 5) if d.numel() == 0 else d
     if d.dim() != 2 or d.shape[1] != 5:
@@ -52,23 +90,86 @@ def make_movers(
         inside = (d[:, 0] - r >= reg[0]) & (d[:, 0] + r <= reg[2]) & (d[:, 1] - r >= reg[1]) & (d[:, 1] + r <= reg[3])
         if not inside.all():
             raise ValueError(f"movers: every disc must start inside its region {reg}")
-    rows = torch.cat((d, torch.tensor(reg, dtype=dtype, device=device).expand(d.shape[0], 4)), 1)
-    return rows.unsqueeze(0).expand(batch_size, -1, -1).clone(), torch.ones(batch_size, d.shape[0], dtype=torch.bool, device=device)
+    m = d.shape[0]
+    rows = torch.cat((d, torch.tensor(reg, dtype=dtype, device=device).expand(m, 4)), 1)
+    plan = torch.zeros(m, 0, dtype=dtype, device=device)
+    if waypoints is not None:
+        if len(waypoints) != m:
+            raise ValueError(f"movers: waypoints needs one list per disc ({m}), got {len(waypoints)}")
+        p = max(1, max((len(w) for w in waypoints), default=1))
+        plan = torch.zeros(m, 4 + 2 * p, dtype=dtype, device=device)
+        for i, w in enumerate(waypoints):
+            if not len(w):
+                continue
+            pts = torch.as_tensor(w, dtype=dtype, device=device)
+            if pts.dim() != 2 or pts.shape[1] != 2 or not torch.isfinite(pts).all():
+                raise ValueError(f"movers: waypoints[{i}] must be a list of finite [x, y], got {w!r}")
+            plan[i, 0] = PEDESTRIAN if pedestrians else PATROL
+            plan[i, 1] = d[i, 2:4].norm()
+            plan[i, 3] = len(w)
+            plan[i, 4 : 4 + 2 * len(w)] = pts.reshape(-1)
+    return Movers(
+        rows.unsqueeze(0).expand(batch_size, -1, -1).clone(),
+        torch.ones(batch_size, m, dtype=torch.bool, device=device),
+        plan.unsqueeze(0).expand(batch_size, -1, -1).clone(),
+    )
 
 
-def no_movers(batch_size: int, like: Tensor) -> tuple[Tensor, Tensor]:
-    """Zero mover slots: ``(B, 0, 9)`` and ``(B, 0)``."""
-    return like.new_zeros(batch_size, 0, N_MOVER_FIELDS), torch.zeros(batch_size, 0, dtype=torch.bool, device=like.device)
+def no_movers(batch_size: int, like: Tensor) -> Movers:
+    """Zero mover slots: ``(B, 0, 9)``, ``(B, 0)`` and ``(B, 0, 0)``."""
+    return Movers(like.new_zeros(batch_size, 0, N_MOVER_FIELDS), torch.zeros(batch_size, 0, dtype=torch.bool, device=like.device),
+                  like.new_zeros(batch_size, 0, 0))
 
 
-def step_movers(movers: Tensor, dt: float) -> Tensor:
-    """Every mover ``(B, M, 9)`` advanced by ``dt`` s: constant velocity, bouncing off its region. Pure."""
+def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float) -> tuple[Tensor, Tensor]:
+    """Every mover ``(B, M, 9)`` and its plan advanced by ``dt`` s (module docstring). Pure.
+
+    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` are what pedestrians avoid besides each other."""
     if movers.shape[1] == 0:
-        return movers
+        return movers, plan
     x, y, vx, vy, r, xmin, ymin, xmax, ymax = movers.unbind(-1)
+    if plan.shape[-1]:
+        (vx, vy), plan = _steer(movers, plan, mask, dt, robot_xy, robot_radius)
     x, vx = _bounce(x + vx * dt, vx, xmin + r, xmax - r)
     y, vy = _bounce(y + vy * dt, vy, ymin + r, ymax - r)
-    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax), -1)
+    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax), -1), plan
+
+
+def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float) -> tuple[tuple[Tensor, Tensor], Tensor]:
+    """New velocities of patrols and pedestrians (ballistic movers keep theirs) and the plan with
+    reached waypoints advanced."""
+    kind, speed, target, n = plan[..., 0], plan[..., 1], plan[..., 2], plan[..., 3]
+    pts = plan[..., 4:].unflatten(-1, (-1, 2))  # (B, M, P, 2)
+    idx = target.long().clamp(0, pts.shape[2] - 1)
+    goal = pts.gather(2, idx[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)  # (B, M, 2)
+    pos, vel = movers[..., 0:2], movers[..., 2:4]
+    to_goal = goal - pos
+    dist = safe_norm(to_goal)
+    ped = kind == PEDESTRIAN
+    reach = torch.where(ped, torch.full_like(speed, PED_ARRIVE), speed * dt)
+    arrived = (kind != BALLISTIC) & (dist <= reach * (1 + 1e-4) + 1e-6)  # with float slack: no pause on a waypoint
+    desired = speed[..., None] * to_goal / dist.clamp(min=1e-9)[..., None]
+    # A patrol that arrives this step lands exactly on its waypoint.
+    patrol_v = torch.where((arrived & ~ped)[..., None], to_goal / dt, desired)
+    new_v = torch.where((kind == PATROL)[..., None], patrol_v, vel)
+    if plan.shape[1]:  # pedestrians: relax towards the desired velocity, pushed by the others and the robot
+        others = torch.cat((pos, robot_xy[:, None, :]), 1)  # (B, M + 1, 2)
+        radii = torch.cat((movers[..., 4], torch.full_like(movers[:, :1, 4], robot_radius)), 1)
+        present = torch.cat((mask, torch.ones_like(mask[:, :1])), 1)
+        diff = pos[:, :, None, :] - others[:, None, :, :]  # (B, M, M + 1, 2) from the other to me
+        d = safe_norm(diff)
+        m = pos.shape[1]
+        not_self = ~torch.eye(m, m + 1, dtype=torch.bool, device=pos.device)
+        gap = movers[..., 4][..., None] + radii[:, None, :] - d
+        push = torch.where(not_self & present[:, None, :], PED_PUSH * torch.exp(gap / PED_RANGE), 0.0)
+        force = (push[..., None] * diff / d.clamp(min=1e-9)[..., None]).sum(2)
+        ped_v = vel + ((desired - vel) / PED_TAU + force) * dt
+        cap = (PED_MAX_SPEED * speed)[..., None]
+        ped_v = ped_v * torch.minimum(torch.ones_like(cap), cap / safe_norm(ped_v)[..., None].clamp(min=1e-9))
+        new_v = torch.where(ped[..., None], ped_v, new_v)
+    target = torch.where(arrived, torch.remainder(target + 1, n.clamp(min=1)), target)
+    plan = torch.cat((plan[..., :2], target[..., None], plan[..., 3:]), -1)
+    return new_v.unbind(-1), plan
 
 
 def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:

@@ -58,6 +58,8 @@ class SimState:
         cam_depth: ``(B, n_cols)`` camera depth row in m (``camera.py``); ``(B, 0)`` without a camera.
         movers: ``(B, M, 9)`` moving obstacles (``movers.py``); ``M`` may be 0.
         mover_mask: ``(B, M)`` bool, which mover slots exist.
+        mover_plan: ``(B, M, 4 + 2P)`` waypoints of patrols and pedestrians (``movers.py``);
+            ``(B, M, 0)`` when every mover is ballistic.
     """
 
     pose: Tensor
@@ -72,6 +74,7 @@ class SimState:
     cam_depth: Tensor
     movers: Tensor
     mover_mask: Tensor
+    mover_plan: Tensor
 
 
 def _as_rows(x, width: int, name: str, dtype, device) -> Tensor:

@@ -20,7 +20,7 @@ from .geometry import disc_clearance
 from .imu import step_imu
 from .kinematics import apply_limits, integrate, wheels_to_unicycle
 from .lidar import lidar_scan
-from .movers import mover_world, no_movers, step_movers
+from .movers import Movers, mover_world, no_movers, step_movers
 from .params import SimParams
 from .state import SimState, World, check_world, planar_world
 
@@ -74,13 +74,14 @@ def step(
     imu, imu_bias = state.imu, state.imu_bias
     if params.imu is not None:
         imu, imu_bias = step_imu(imu, imu_bias, vel, state.vel, state.time, params.imu, params.dt, generator)
-    movers = step_movers(state.movers, params.dt)
-    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, state.mover_mask, world, params, generator, unroll)
+    rows, plan = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], params.robot_radius)
+    movers = Movers(rows, state.mover_mask, plan)
+    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, world, params, generator, unroll)
 
 
-def _sense(pose, vel, odom, time, imu, imu_bias, movers, mover_mask, world, params, generator=None, unroll=None) -> SimState:
+def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, world, params, generator=None, unroll=None) -> SimState:
     """The state at ``pose`` with its collision, lidar and camera readings (movers included)."""
-    mw = mover_world(movers, mover_mask) if movers.shape[1] else None
+    mw = mover_world(movers.rows, movers.mask) if movers.rows.shape[1] else None
     clearance = disc_clearance(pose, world, params.robot_radius)
     if mw is not None:
         clearance = torch.minimum(clearance, disc_clearance(pose, mw, params.robot_radius))
@@ -88,7 +89,7 @@ def _sense(pose, vel, odom, time, imu, imu_bias, movers, mover_mask, world, para
     depth = camera_depth(pose, world, params.camera, mw) if params.camera is not None else pose.new_zeros(pose.shape[0], 0)
     return SimState(
         pose=pose, vel=vel, odom=odom, ranges=ranges, clearance=clearance, collided=clearance <= 0, time=time,
-        imu=imu, imu_bias=imu_bias, cam_depth=depth, movers=movers, mover_mask=mover_mask,
+        imu=imu, imu_bias=imu_bias, cam_depth=depth, movers=movers.rows, mover_mask=movers.mask, mover_plan=movers.plan,
         batch_size=[pose.shape[0]], device=pose.device,
     )
 
@@ -106,12 +107,13 @@ def init_state(
     world: World,
     params: SimParams,
     vel: Tensor | None = None,
-    movers: tuple[Tensor, Tensor] | None = None,
+    movers: Movers | tuple[Tensor, Tensor] | None = None,
 ) -> SimState:
     """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
     scan, clearance and camera depth already computed. Odometry starts at the true pose; the
-    IMU reads zero with zero bias. ``movers`` is ``(movers (B, M, 9), mover_mask (B, M))``
-    (``movers.make_movers``); ``None`` means no moving obstacles."""
+    IMU reads zero with zero bias. ``movers`` is a :class:`~torchnav.sim.movers.Movers`
+    (``make_movers``), or a pair ``(rows (B, M, 9), mask (B, M))`` of ballistic movers;
+    ``None`` means no moving obstacles."""
     if pose.dim() != 2 or pose.shape[-1] != 3:
         raise ValueError(f"pose must have shape (B, 3), got {tuple(pose.shape)}")
     b = pose.shape[0]
@@ -122,7 +124,11 @@ def init_state(
         raise ValueError(f"vel must be a ({b}, 2) tensor of the pose's dtype and device, got {vel.dtype} {tuple(vel.shape)} on {vel.device}")
     if movers is None:
         movers = no_movers(b, pose)
-    rows, mask = movers
+    if len(movers) == 2:
+        movers = Movers(*movers, movers[0].new_zeros(b, movers[0].shape[1], 0))
+    rows, mask, plan = movers
+    if plan.dim() != 3 or plan.shape[:2] != rows.shape[:2] or (plan.shape[2] and (plan.shape[2] < 6 or plan.shape[2] % 2)):
+        raise ValueError(f"movers.plan must be ({b}, M, 4 + 2P) with P >= 1, or ({b}, M, 0), got {tuple(plan.shape)}")
     if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] != 9 or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
         raise ValueError(f"movers must be a ({b}, M, 9) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}")
     if rows.dtype != pose.dtype or rows.device != pose.device:
@@ -130,5 +136,5 @@ def init_state(
     n_imu = 0 if params.imu is None else 3
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
-        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), rows, mask, world, params,
+        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype)), world, params,
     )

@@ -21,6 +21,7 @@ from torch import Tensor
 from ..maps import MapSpec
 from ..maps.spec import RandomCircles
 from ..sim import World, pad_world, points_clearance
+from ..sim.movers import PATROL, PEDESTRIAN, Movers
 
 _BIG = 1e9
 # Most elements of one (n, candidates, obstacles) distance temporary: 4 MB in float32, and the
@@ -208,13 +209,15 @@ class _MoverPlacement:
 def place_movers(
     world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
-) -> tuple[Tensor, Tensor]:
-    """The map's ``moving_circles`` for a batch ``n`` of episodes: ``movers`` ``(n, M, 9)`` and ``mover_mask`` ``(n, M)``.
+) -> Movers:
+    """The map's ``moving_circles`` for a batch ``n`` of episodes (``movers (n, M, 9)``, ``mask (n, M)``, ``plan``).
 
     Positions are placed like random circles (:func:`place_random_objects`: ``clearance`` from
     the start and the goal, ``margin`` from every obstacle of ``world``, including this
     episode's random objects, and from each other; inside the region); a mover with no valid
-    candidate is left out (masked off). Headings are uniform, speeds uniform in ``speed``.
+    candidate is left out (masked off). Headings are uniform, speeds uniform in ``speed``;
+    patrols and pedestrians get ``waypoints`` points uniform in the region (shrunk by
+    their radius) and head for the first.
     """
     mc = spec.moving_circles
     n, like = start_xy.shape[0], start_xy
@@ -226,7 +229,15 @@ def place_movers(
     disc, mask = placed.circles[:, -mc.count:], placed.circle_mask[:, -mc.count:]
     heading = _uniform((n, mc.count), -math.pi, math.pi, gen, like)
     speed = _uniform((n, mc.count), mc.speed[0], mc.speed[1], gen, like)
-    box = region if mc.motion == "bounce" else (-math.inf, -math.inf, math.inf, math.inf)
+    box = (-math.inf, -math.inf, math.inf, math.inf) if mc.motion == "constant" else region
     rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3],
                       torch.tensor(box, dtype=like.dtype, device=like.device).expand(n, mc.count, 4)), -1)
-    return rows, mask
+    plan = like.new_zeros(n, mc.count, 0)
+    if mc.motion in ("patrol", "pedestrian"):
+        p, r = mc.waypoints, disc[..., 2:3]
+        wx = region[0] + r + (region[2] - region[0] - 2 * r) * torch.rand((n, mc.count, p), generator=gen, dtype=like.dtype, device=like.device)
+        wy = region[1] + r + (region[3] - region[1] - 2 * r) * torch.rand((n, mc.count, p), generator=gen, dtype=like.dtype, device=like.device)
+        kind = PEDESTRIAN if mc.motion == "pedestrian" else PATROL
+        head = torch.stack((torch.full_like(speed, kind), speed, torch.zeros_like(speed), torch.full_like(speed, p)), -1)
+        plan = torch.cat((head, torch.stack((wx, wy), -1).flatten(-2)), -1)
+    return Movers(rows, mask, plan)
