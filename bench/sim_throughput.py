@@ -142,7 +142,7 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
         plan = plan.expand(b, -1, -1).clone()
         if movers == "pedestrians":  # 4 random waypoints each
             plan[..., 4:] = u(-3.5, 3.5, b, m, 8)
-        discs = (torch.cat((rows, one[:, :, 5:].expand(b, -1, -1)), -1).to(device), mask.expand(b, -1).to(device), plan.to(device))
+        discs = (torch.cat((rows, one[:, :, 5:].expand(b, -1, -1)), -1).to(device), mask.expand(b, -1).contiguous().to(device), plan.to(device))
     state = init_state(pose.to(device), world, params, movers=discs)
     return state, world, [a.to(device) for a in actions]
 

@@ -383,3 +383,116 @@ def test_pedestrians_avoid_each_other_and_the_robot():
         s = step(s, torch.zeros(1, 2), world, params)
         touched |= (s.movers[0, 0, :2] - s.movers[0, 1, :2]).norm().item() < 0.5
     assert touched
+
+
+def test_task_places_pedestrians_with_waypoints_in_their_region(tmp_path):
+    from torchnav.envs import make_env
+
+    path = tmp_path / "peds.yaml"
+    path.write_text(MOVING_MAP.replace("speed: [0.2, 0.5], clearance: 1.5, margin: 0.1}",
+                                       "speed: [0.2, 0.5], clearance: 1.5, margin: 0.1, motion: pedestrian, waypoints: 3, region: [-4, -3, 4, 3]}"))
+    env = make_env(str(path), num_envs=64, seed=0)
+    td = env.reset()
+    s = env._state.sim
+    assert s.mover_plan.shape == (64, 4, 4 + 6)
+    assert (s.mover_plan[..., 0] == 2).all() and (s.mover_plan[..., 3] == 3).all() and (s.mover_plan[..., 2] == 0).all()
+    pts = s.mover_plan[..., 4:].unflatten(-1, (3, 2))
+    r = s.movers[..., 4:5, None].squeeze(-1)
+    assert (pts[..., 0] >= -4 + r - 1e-5).all() and (pts[..., 0] <= 4 - r + 1e-5).all()
+    assert (pts[..., 1] >= -3 + r - 1e-5).all() and (pts[..., 1] <= 3 - r + 1e-5).all()
+    assert ((s.movers[..., 2:4].norm(dim=-1) - s.mover_plan[..., 1]).abs() < 1e-5).all()  # speed in the plan
+    for _ in range(5):
+        td = env.step_and_maybe_reset(env.rand_action(td))[1]
+    assert env._state.sim.mover_plan.shape == (64, 4, 10)
+
+
+# -- domain randomisation ---------------------------------------------------------------------
+
+RANDOMIZE = {"v_max": [0.5, 1.0], "omega_max": [0.5, 1.5], "lin_acc_max": [1.0, 3.0], "ang_acc_max": [2.0, 4.0], "delay": [0, 2],
+             "wheel_noise": [0.0, 0.05], "range_noise": [0.0, 0.03], "dropout": [0.0, 0.1], "angle_offset": [-0.05, 0.05],
+             "max_range": [6.0, 10.0], "robot_radius": [0.15, 0.25]}
+
+
+def test_randomized_parameters_lie_in_their_ranges_and_follow_the_seed():
+    from torchnav.envs import make_env
+
+    env = make_env("arena", num_envs=512, seed=7, randomize=RANDOMIZE)
+    env.reset()
+    p = env._state.env_params
+    for name, (lo, hi) in RANDOMIZE.items():
+        v = getattr(p, name).double()
+        assert (v >= lo).all() and (v <= hi).all(), name
+        assert v.std() > 0, name  # really varies between envs
+    assert set(p.delay.unique().tolist()) == {0, 1, 2}
+    again = make_env("arena", num_envs=512, seed=7, randomize=RANDOMIZE)
+    again.reset()
+    assert all(torch.equal(getattr(p, k), getattr(again._state.env_params, k)) for k in RANDOMIZE)
+    other = make_env("arena", num_envs=512, seed=8, randomize=RANDOMIZE)
+    other.reset()
+    assert not torch.equal(p.v_max, other._state.env_params.v_max)
+    # A new episode draws new parameters.
+    state, _ = env.task.reset(env._state, torch.ones(512, dtype=torch.bool), env.curriculum, env._generator)
+    assert not torch.equal(state.env_params.v_max, p.v_max)
+
+
+def test_randomized_step_applies_limits_delay_radius_and_lidar_range():
+    from torchnav.sim import EnvParams, nominal_env_params
+
+    params = SimParams(v_max=2.0, omega_max=2.0, lidar=LidarParams(n_rays=3, fov=math.pi / 2, max_range=10.0))
+    world = make_world(3, segments=[[3.0, -10.0, 3.0, 10.0]])
+    base = nominal_env_params(params, 3, torch.zeros(1))
+    d = base.to_dict()
+    d.update(v_max=torch.tensor([0.5, 1.0, 2.0]), delay=torch.tensor([0, 1, 2]), max_range=torch.tensor([10.0, 2.0, 10.0]),
+             robot_radius=torch.tensor([0.2, 0.5, 3.1]), angle_offset=torch.tensor([0.0, 0.0, 0.1]))
+    ep = EnvParams(**d, batch_size=[3])
+    s = init_state(torch.zeros(3, 3), world, params, env_params=ep, delay_steps=2)
+    assert s.cmd_queue.shape == (3, 2, 2)
+    assert s.ranges[1].tolist() == pytest.approx([2.0, 2.0, 2.0])  # its lidar reaches 2 m
+    assert s.ranges[0, 1].item() == pytest.approx(3.0, abs=1e-5) and s.ranges[2, 1].item() == pytest.approx(3.0 / math.cos(0.1), abs=1e-4)
+    assert s.clearance.tolist() == pytest.approx([2.8, 2.5, -0.1], abs=1e-5)  # each env's robot radius
+    assert s.collided.tolist() == [False, False, True]
+    cmd = torch.tensor([[3.0, 0.0]]).expand(3, 2)
+    vs = []
+    s = init_state(torch.tensor([[-5.0, 0.0, 0.0]]).expand(3, 3), world, params, env_params=ep, delay_steps=2)
+    for _ in range(3):
+        s = step(s, cmd, world, params, env_params=ep)
+        vs.append(s.vel[:, 0].tolist())
+    # env 0: no delay, 0.5 m/s at once; env 1: one step late, 1 m/s; env 2: two steps late, 2 m/s.
+    assert vs == [[0.5, 0.0, 0.0], [0.5, 1.0, 0.0], [0.5, 1.0, 2.0]]
+
+
+def test_randomized_noise_dropout_and_wheel_noise_statistics():
+    from torchnav.sim import EnvParams, nominal_env_params
+
+    b = 2048
+    params = SimParams(lidar=LidarParams(n_rays=8, fov=math.pi / 4, max_range=10.0))
+    world = make_world(b, segments=[[3.0, -10.0, 3.0, 10.0]])
+    d = nominal_env_params(params, b, torch.zeros(1)).to_dict()
+    d.update(range_noise=torch.full((b,), 0.05), dropout=torch.full((b,), 0.2), wheel_noise=torch.full((b,), 0.1))
+    ep = EnvParams(**d, batch_size=[b])
+    s = init_state(torch.zeros(b, 3), world, params, env_params=ep)
+    s = step(s, torch.tensor([[0.2, 0.0]]).expand(b, 2), world, params, env_params=ep, generator=torch.Generator().manual_seed(0))
+    dropped = s.ranges == 10.0
+    assert dropped.float().mean().item() == pytest.approx(0.2, abs=0.01)
+    # Wheel noise of std 0.1 on each wheel: v = mean of the wheels has std 0.1 / sqrt(2).
+    assert s.vel[:, 0].std().item() == pytest.approx(0.1 / math.sqrt(2), rel=0.06)
+    assert s.vel[:, 0].mean().item() == pytest.approx(0.2, abs=0.01)
+
+
+def test_randomize_config_errors_and_evaluation_switch():
+    from torchnav.config import ConfigError
+    from torchnav.envs import make_env
+    from torchnav.evaluation import eval_config
+    from torchnav.tasks import NavConfig
+
+    for bad, key in (({"dropout": [0.0, 1.5]}, "dropout"), ({"v_max": [1.0, 0.5]}, "v_max"), ({"delay": [0, 1.5]}, "delay"),
+                     ({"max_range": [5.0, 20.0]}, "max_range"), ({"wheel_noise": [-0.1, 0.1]}, "wheel_noise")):
+        with pytest.raises(ConfigError, match=key):
+            make_env("arena", num_envs=2, randomize=bad)
+    with pytest.raises(ConfigError, match="unknown key"):
+        make_env("arena", num_envs=2, randomize={"mass": [1.0, 2.0]})
+    cfg = NavConfig.from_dict({"randomize": RANDOMIZE})
+    assert eval_config(cfg, randomize_off=True).randomize.ranges() == {}
+    assert set(eval_config(cfg, randomize_off=["delay", "dropout"]).randomize.ranges()) == set(RANDOMIZE) - {"delay", "dropout"}
+    with pytest.raises(ValueError, match="unknown"):
+        eval_config(cfg, randomize_off=["mass"])

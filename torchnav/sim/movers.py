@@ -121,10 +121,10 @@ def no_movers(batch_size: int, like: Tensor) -> Movers:
                   like.new_zeros(batch_size, 0, 0))
 
 
-def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float) -> tuple[Tensor, Tensor]:
+def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[Tensor, Tensor]:
     """Every mover ``(B, M, 9)`` and its plan advanced by ``dt`` s (module docstring). Pure.
 
-    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` are what pedestrians avoid besides each other."""
+    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` (m, or ``(B,)``) are what pedestrians avoid besides each other."""
     if movers.shape[1] == 0:
         return movers, plan
     x, y, vx, vy, r, xmin, ymin, xmax, ymax = movers.unbind(-1)
@@ -135,7 +135,7 @@ def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy:
     return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax), -1), plan
 
 
-def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float) -> tuple[tuple[Tensor, Tensor], Tensor]:
+def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
     """New velocities of patrols and pedestrians (ballistic movers keep theirs) and the plan with
     reached waypoints advanced."""
     kind, speed, target, n = plan[..., 0], plan[..., 1], plan[..., 2], plan[..., 3]
@@ -154,7 +154,8 @@ def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tens
     new_v = torch.where((kind == PATROL)[..., None], patrol_v, vel)
     if plan.shape[1]:  # pedestrians: relax towards the desired velocity, pushed by the others and the robot
         others = torch.cat((pos, robot_xy[:, None, :]), 1)  # (B, M + 1, 2)
-        radii = torch.cat((movers[..., 4], torch.full_like(movers[:, :1, 4], robot_radius)), 1)
+        rr = robot_radius[:, None].to(movers.dtype) if isinstance(robot_radius, Tensor) else torch.full_like(movers[:, :1, 4], robot_radius)
+        radii = torch.cat((movers[..., 4], rr), 1)
         present = torch.cat((mask, torch.ones_like(mask[:, :1])), 1)
         diff = pos[:, :, None, :] - others[:, None, :, :]  # (B, M, M + 1, 2) from the other to me
         d = safe_norm(diff)

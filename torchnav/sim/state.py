@@ -60,6 +60,8 @@ class SimState:
         mover_mask: ``(B, M)`` bool, which mover slots exist.
         mover_plan: ``(B, M, 4 + 2P)`` waypoints of patrols and pedestrians (``movers.py``);
             ``(B, M, 0)`` when every mover is ballistic.
+        cmd_queue: ``(B, K, 2)`` the last ``K`` commands, newest first, for an actuator
+            delay of up to ``K`` steps (``randomize.py``); ``(B, 0, 2)`` without delay.
     """
 
     pose: Tensor
@@ -75,6 +77,7 @@ class SimState:
     movers: Tensor
     mover_mask: Tensor
     mover_plan: Tensor
+    cmd_queue: Tensor
 
 
 def _as_rows(x, width: int, name: str, dtype, device) -> Tensor:

@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from ..config import ConfigError, from_dict
-from ..sim import CameraParams, ImuParams, LidarParams, SimParams
+from ..sim import RANDOMIZED, CameraParams, ImuParams, LidarParams, SimParams
+from ..sim.randomize import check_ranges
 
 CURRICULUM_MODES = ("growth", "success", "off")
 ACTION_MODES = ("continuous", "discrete")
@@ -68,6 +69,31 @@ class CameraConfig:
     max_range: float = 10.0  # m, depth of misses and the depth row's cap
     height: float = 0.3  # m above the floor
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose on the robot: m, m, rad
+
+
+Range = tuple[float, float] | None
+
+
+@dataclass(frozen=True)
+class RandomizeConfig:
+    """Domain randomisation (docs/tasks.md#randomize): each key a ``[min, max]`` range drawn
+    uniformly per env at every reset, or null for the fixed value of ``robot``/``lidar``."""
+
+    v_max: Range = None  # m/s, speed limit (the reverse limit scales with it)
+    omega_max: Range = None  # rad/s, turn-rate limit
+    lin_acc_max: Range = None  # m/s^2, linear acceleration limit
+    ang_acc_max: Range = None  # rad/s^2, angular acceleration limit
+    delay: Range = None  # steps (whole numbers), actuator delay
+    wheel_noise: Range = None  # m/s, std of Gaussian noise on each wheel's speed
+    range_noise: Range = None  # m, std of the lidar's Gaussian range noise
+    dropout: Range = None  # probability that a lidar ray reads max_range
+    angle_offset: Range = None  # rad, lidar yaw misalignment
+    max_range: Range = None  # m, lidar range (at most lidar.max_range)
+    robot_radius: Range = None  # m, robot disc for collision
+
+    def ranges(self) -> dict[str, tuple[float, float]]:
+        """The randomised parameters and their ranges."""
+        return {k: v for k, v in ((f, getattr(self, f)) for f in RANDOMIZED) if v is not None}
 
 
 @dataclass(frozen=True)
@@ -144,6 +170,7 @@ class NavConfig:
     lidar: LidarConfig = field(default_factory=LidarConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
+    randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
@@ -182,7 +209,11 @@ class NavConfig:
                 raise ConfigError(msg)
         for name in w.families:
             _check_family(name)
-        self.sim_params()  # validates robot and lidar fields
+        params = self.sim_params()  # validates robot and lidar fields
+        try:
+            check_ranges(self.randomize.ranges(), params)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None = None, where: str = "env") -> "NavConfig":

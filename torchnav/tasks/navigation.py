@@ -15,7 +15,8 @@ from torch import Tensor
 
 from ..maps import load_map
 from ..maps.free_space import check_room
-from ..sim import SimState, World, init_state, pad_world, safe_hypot, sectorize, wrap_angle
+from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
+from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
 from ..sim import step as sim_step
 from .base import BatchedTask
@@ -38,6 +39,8 @@ class NavState:
         history: ``(B, H, D)`` the last H observations, newest last.
         family: ``(B,)`` int64 index of the episode's world family in ``cfg.worlds.families``
             (0 without procedural worlds). difficulty: ``(B,)`` its difficulty in [0, 1].
+        env_params: the episode's per-env robot and sensor parameters (``cfg.randomize``;
+            the fixed values of ``cfg`` when nothing is randomised).
     """
 
     sim: SimState
@@ -53,6 +56,7 @@ class NavState:
     history: Tensor
     family: Tensor
     difficulty: Tensor
+    env_params: EnvParams
 
 
 class NavTask(BatchedTask):
@@ -65,6 +69,10 @@ class NavTask(BatchedTask):
         if self.spec is not None:  # a map with no room for a start or a goal is refused before any episode
             check_room(self.spec, cfg.robot.radius + cfg.reset.start_clearance, cfg.reset.goal_clearance)
         self.params = cfg.sim_params()
+        self.randomized = cfg.randomize.ranges()  # domain randomisation: parameter -> (min, max)
+        self.delay_steps = max_delay(self.randomized)
+        # The largest robot the episode may draw decides how much room a start needs.
+        self.max_radius = max(cfg.robot.radius, self.randomized.get("robot_radius", (0.0, 0.0))[1])
         # Moving discs of the map (placed at every reset); procedural worlds have none.
         self.n_movers = self.spec.moving_circles.count if self.spec is not None and self.spec.moving_circles else 0
         self.weights = resolve_weights(cfg.reward)
@@ -151,19 +159,24 @@ class NavTask(BatchedTask):
             world, start, goal, family, difficulty = self._generated(n, cur, gen)
         else:
             world = self.base_world[idx]
-            start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
+            start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, gen)
             goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
             world = place_random_objects(
                 world, self.spec, start[:, :2], goal, rc.candidates, gen,
-                start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance,
+                start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance,
             )
             family = torch.zeros(n, dtype=torch.int64, device=self.device)
             difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
         movers = None
         if self.n_movers:
             movers = place_movers(world, self.spec, start[:, :2], goal, rc.candidates, gen,
-                                  start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance)
-        sim = init_state(start, world, self.params, movers=movers)
+                                  start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
+        if self.randomized:
+            env_params = sample_env_params(self.randomized, self.params, n, gen, start)
+        else:
+            env_params = nominal_env_params(self.params, n, start)
+        sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
+                         delay_steps=self.delay_steps)
         obs = self.observe(sim, goal)
         dist, _ = self.goal_vector(sim.pose, goal)
         zeros = torch.zeros(n, dtype=self.dtype, device=self.device)
@@ -173,7 +186,7 @@ class NavTask(BatchedTask):
             goal_dist=dist, ep_return=zeros, ep_path=zeros.clone(), straight=dist.detach().clone(),
             ep_terms=torch.zeros(n, len(self.term_names), dtype=self.dtype, device=self.device),
             history=obs[:, None, :].expand(n, self.cfg.observation.history, self.obs_dim).clone(),
-            family=family, difficulty=difficulty, batch_size=[n], device=self.device,
+            family=family, difficulty=difficulty, env_params=env_params, batch_size=[n], device=self.device,
         )
 
     def _generated(self, n: int, cur: CurriculumState, gen: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor]:
@@ -240,7 +253,8 @@ class NavTask(BatchedTask):
         ``terms`` (dict of ``(B,)`` weighted reward terms), ``terminated``, ``truncated``,
         ``success``, ``collision`` ``(B,)`` bool.
         """
-        sim = self._sim_step(state.sim, self.command(action), state.world, self.params, generator=gen)
+        sim = self._sim_step(state.sim, self.command(action), state.world, self.params, generator=gen,
+                             env_params=state.env_params if self.randomized else None)
         dist, bearing = self.goal_vector(sim.pose, state.goal)
         collision = sim.collided
         success = (dist < self.cfg.goal_tolerance) & ~collision
@@ -260,7 +274,8 @@ class NavTask(BatchedTask):
             ep_return=state.ep_return + reward,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
             straight=state.straight, ep_terms=state.ep_terms + stacked, history=history,
-            family=state.family, difficulty=state.difficulty, batch_size=state.batch_size, device=state.device,
+            family=state.family, difficulty=state.difficulty, env_params=state.env_params,
+            batch_size=state.batch_size, device=state.device,
         )
         out = {
             "observation": history.reshape(history.shape[0], -1), "reward": reward, "terms": terms,
