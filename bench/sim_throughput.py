@@ -139,7 +139,7 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
         rows = torch.stack((u(-3.5, 3.5, b, m), u(-3.5, 3.5, b, m), u(-0.5, 0.5, b, m), u(-0.5, 0.5, b, m), u(0.2, 0.3, b, m)), -1)
         pts = [[[0.0, 0.0]] * 4] * m if movers == "pedestrians" else None
         one, mask, plan = make_movers(1, [[0.0, 0.0, 0.5, 0.0, 0.3]] * m, region=(-h, -h, h, h), waypoints=pts, pedestrians=True)
-        plan = plan.expand(b, -1, -1).clone()
+        plan = torch.zeros(b, m, plan.shape[-1]) + plan  # a fresh tensor, also when empty
         if movers == "pedestrians":  # 4 random waypoints each
             plan[..., 4:] = u(-3.5, 3.5, b, m, 8)
         discs = (torch.cat((rows, one[:, :, 5:].expand(b, -1, -1)), -1).to(device), mask.expand(b, -1).contiguous().to(device), plan.to(device))

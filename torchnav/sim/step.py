@@ -164,6 +164,8 @@ def init_state(
         raise ValueError(f"movers must be a ({b}, M, 9) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}")
     if rows.dtype != pose.dtype or rows.device != pose.device:
         raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device}")
+    if plan.numel() == 0:  # canonical strides for an empty plan (an expanded one would make torch.compile recompile)
+        plan = rows.new_zeros(plan.shape)
     n_imu = 0 if params.imu is None else 3
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)

@@ -243,7 +243,7 @@ class NavConfig:
                 imu=imu, camera=camera,
             )
         except ValueError as e:
-            raise ConfigError(f"robot/lidar/imu/camera: {e}") from e
+            raise ConfigError(f"robot/lidar: {e}") from e
 
 
 def _check_family(name: str) -> None:
