@@ -37,8 +37,8 @@ from typing import NamedTuple, Sequence
 import torch
 from torch import Tensor
 
-from .math import safe_norm
-from .state import World
+from .math import safe_hypot
+from .state import World, _planar_copy
 
 MOVER_FIELDS = ("x", "y", "vx", "vy", "radius", "xmin", "ymin", "xmax", "ymax")
 N_MOVER_FIELDS = len(MOVER_FIELDS)
@@ -137,40 +137,55 @@ def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy:
 
 def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
     """New velocities of patrols and pedestrians (ballistic movers keep theirs) and the plan with
-    reached waypoints advanced."""
-    kind, speed, target, n = plan[..., 0], plan[..., 1], plan[..., 2], plan[..., 3]
-    pts = plan[..., 4:].unflatten(-1, (-1, 2))  # (B, M, P, 2)
-    idx = target.long().clamp(0, pts.shape[2] - 1)
-    goal = pts.gather(2, idx[..., None, None].expand(-1, -1, 1, 2)).squeeze(2)  # (B, M, 2)
-    pos, vel = movers[..., 0:2], movers[..., 2:4]
-    to_goal = goal - pos
-    dist = safe_norm(to_goal)
+    reached waypoints advanced.
+
+    Written on ``(M, B)`` components (a mover-major copy, so the batch is the contiguous
+    inner dimension) with short Python loops over the waypoints and the other movers:
+    compiled, this fuses into vectorised passes, about 2.5x faster than the same maths on
+    ``(B, M, M + 1, 2)`` pair tensors, whose inner dimension of a few movers does not vectorise."""
+    # Materialised by an opaque op: torch.compile would otherwise fuse the transposed reads
+    # into its loops and iterate over the batch's few movers innermost, unvectorised.
+    cols = _planar_copy(movers[..., :5].transpose(0, 1))  # (5, M, B)
+    pc = _planar_copy(plan.transpose(0, 1))  # (4 + 2P, M, B)
+    kind, speed, target, n = pc[0], pc[1], pc[2], pc[3]
+    x, y, vx, vy, r = cols.unbind(0)
+    mask = mask.t()
+    gx, gy = torch.zeros_like(x), torch.zeros_like(y)
+    for k in range((pc.shape[0] - 4) // 2):  # the next waypoint
+        here = target == k
+        gx, gy = torch.where(here, pc[4 + 2 * k], gx), torch.where(here, pc[5 + 2 * k], gy)
+    tx, ty = gx - x, gy - y
+    dist = safe_hypot(tx, ty)
     ped = kind == PEDESTRIAN
     reach = torch.where(ped, torch.full_like(speed, PED_ARRIVE), speed * dt)
     arrived = (kind != BALLISTIC) & (dist <= reach * (1 + 1e-4) + 1e-6)  # with float slack: no pause on a waypoint
-    desired = speed[..., None] * to_goal / dist.clamp(min=1e-9)[..., None]
+    scale = speed / dist.clamp(min=1e-9)
+    dvx, dvy = scale * tx, scale * ty  # desired velocity
     # A patrol that arrives this step lands exactly on its waypoint.
-    patrol_v = torch.where((arrived & ~ped)[..., None], to_goal / dt, desired)
-    new_v = torch.where((kind == PATROL)[..., None], patrol_v, vel)
-    if plan.shape[1]:  # pedestrians: relax towards the desired velocity, pushed by the others and the robot
-        others = torch.cat((pos, robot_xy[:, None, :]), 1)  # (B, M + 1, 2)
-        rr = robot_radius[:, None].to(movers.dtype) if isinstance(robot_radius, Tensor) else torch.full_like(movers[:, :1, 4], robot_radius)
-        radii = torch.cat((movers[..., 4], rr), 1)
-        present = torch.cat((mask, torch.ones_like(mask[:, :1])), 1)
-        diff = pos[:, :, None, :] - others[:, None, :, :]  # (B, M, M + 1, 2) from the other to me
-        d = safe_norm(diff)
-        m = pos.shape[1]
-        not_self = ~torch.eye(m, m + 1, dtype=torch.bool, device=pos.device)
-        gap = movers[..., 4][..., None] + radii[:, None, :] - d
-        push = torch.where(not_self & present[:, None, :], PED_PUSH * torch.exp(gap / PED_RANGE), 0.0)
-        force = (push[..., None] * diff / d.clamp(min=1e-9)[..., None]).sum(2)
-        ped_v = vel + ((desired - vel) / PED_TAU + force) * dt
-        cap = (PED_MAX_SPEED * speed)[..., None]
-        ped_v = ped_v * torch.minimum(torch.ones_like(cap), cap / safe_norm(ped_v)[..., None].clamp(min=1e-9))
-        new_v = torch.where(ped[..., None], ped_v, new_v)
+    land = arrived & ~ped
+    pvx, pvy = torch.where(land, tx / dt, dvx), torch.where(land, ty / dt, dvy)
+    patrol = kind == PATROL
+    nvx, nvy = torch.where(patrol, pvx, vx), torch.where(patrol, pvy, vy)
+    # Pedestrians: relax towards the desired velocity, pushed by the other movers and the robot.
+    rr = robot_radius[None, :].to(x.dtype) if isinstance(robot_radius, Tensor) else robot_radius
+    others = [(x[j : j + 1], y[j : j + 1], r[j : j + 1], mask[j : j + 1], j) for j in range(x.shape[0])]
+    others.append((robot_xy[None, :, 0], robot_xy[None, :, 1], rr, None, -1))
+    fx, fy = torch.zeros_like(x), torch.zeros_like(y)
+    slot = torch.arange(x.shape[0], device=x.device)[:, None]
+    for ox, oy, orad, present, j in others:
+        ax, ay = x - ox, y - oy
+        d = safe_hypot(ax, ay)
+        push = PED_PUSH * torch.exp((r + orad - d) / PED_RANGE) / d.clamp(min=1e-9)
+        if present is not None:  # not oneself, and only movers that exist
+            push = torch.where((slot != j) & present, push, 0.0)
+        fx, fy = fx + push * ax, fy + push * ay
+    qx = vx + ((dvx - vx) / PED_TAU + fx) * dt
+    qy = vy + ((dvy - vy) / PED_TAU + fy) * dt
+    cap = torch.minimum(torch.ones_like(speed), PED_MAX_SPEED * speed / safe_hypot(qx, qy).clamp(min=1e-9))
+    nvx, nvy = torch.where(ped, qx * cap, nvx), torch.where(ped, qy * cap, nvy)
     target = torch.where(arrived, torch.remainder(target + 1, n.clamp(min=1)), target)
-    plan = torch.cat((plan[..., :2], target[..., None], plan[..., 3:]), -1)
-    return new_v.unbind(-1), plan
+    plan = torch.cat((plan[..., :2], target.t()[..., None], plan[..., 3:]), -1)
+    return (nvx.t(), nvy.t()), plan
 
 
 def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:
