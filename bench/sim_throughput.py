@@ -47,6 +47,7 @@ import torch  # noqa: E402
 
 from torchnav.sim import (  # noqa: E402
     CameraParams,
+    EnvParams,
     ImuParams,
     LidarParams,
     SimParams,
@@ -60,6 +61,7 @@ from torchnav.sim import (  # noqa: E402
     make_movers,
     make_world,
     planar_world,
+    sample_env_params,
     step,
 )
 from torchnav.sim.step import step_odometry  # noqa: E402
@@ -83,7 +85,11 @@ OPTIONS: dict[str, tuple[dict[str, Any], int | str]] = {
     "movers4": ({}, 4),  # 4 discs bouncing inside the arena, seen by lidar and collision
     "pedestrians4": ({}, "pedestrians"),  # 4 pedestrians cycling through 4 waypoints, avoiding each other and the robot
     "all": ({"imu": ImuParams(), "camera": CameraParams(n_cols=64)}, 4),
+    "randomized": ({}, 0),  # per-env EnvParams: limits, 0-2 steps of actuator delay, lidar offset and range, radius
 }
+# The ranges of the "randomized" option (noise and dropout need a generator, which the bench does not pass).
+RANDOMIZE = {"v_max": (0.3, 0.5), "omega_max": (0.5, 1.0), "lin_acc_max": (1.0, 3.0), "ang_acc_max": (2.0, 4.0), "delay": (0, 2),
+             "angle_offset": (-0.05, 0.05), "max_range": (6.0, 10.0), "robot_radius": (0.15, 0.25)}
 
 
 # -- the load ------------------------------------------------------------------------------------
@@ -150,13 +156,13 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
 # -- step functions --------------------------------------------------------------------------------
 
 
-def step_fn(mode: str, params: SimParams, dynamic: bool) -> Callable[[SimState, torch.Tensor, World], SimState]:
+def step_fn(mode: str, params: SimParams, dynamic: bool, env_params: EnvParams | None = None) -> Callable[[SimState, torch.Tensor, World], SimState]:
     batched = mode.endswith("-batched")
 
     def fn(state: SimState, action: torch.Tensor, world: World) -> SimState:
         if batched:
-            return step(state, action, world, params, unroll=False)
-        return step(state, action, world, params)
+            return step(state, action, world, params, unroll=False, env_params=env_params)
+        return step(state, action, world, params, env_params=env_params)
 
     if mode.startswith("eager"):
         return fn
@@ -187,6 +193,10 @@ def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, 
     for option in options:
         params = bench_params(option)
         state, world, actions = make_load(num_envs, device, seed=args.seed, params=params, movers=OPTIONS[option][1])
+        env_params = None
+        if option == "randomized":
+            env_params = sample_env_params(RANDOMIZE, params, num_envs, torch.Generator().manual_seed(args.seed), state.pose)
+            state = init_state(state.pose, world, params, env_params=env_params, delay_steps=2)
         rec: dict[str, Any] = {
             "bench": "sim_throughput", "device": device, "num_envs": num_envs, "mode": mode, "option": option,
             "env_steps_per_s": None, "env_steps_per_s_min": None, "env_steps_per_s_max": None, "step_us": None,
@@ -196,7 +206,7 @@ def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, 
         if mode.startswith("compiled") or mode == "cudagraphs":
             if not args.dynamic or num_envs == args.sizes[0]:
                 torch._dynamo.reset()  # static shapes: a fresh compile per (mode, size, option)
-        fn = step_fn(mode, params, args.dynamic)
+        fn = step_fn(mode, params, args.dynamic, env_params)
         box = {"s": state, "i": 0}
 
         def call(fn=fn, box=box, actions=actions, world=world) -> None:
@@ -216,10 +226,10 @@ def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, 
             for _ in range(args.warmup):
                 call()
             steps = args.steps or common.calibrate(call, device, args.run_seconds, lo=3, hi=100_000)
-            rows.append((rec, call, common.Timing(items_per_call=num_envs, steps=steps), fn, box, actions, world, params))
+            rows.append((rec, call, common.Timing(items_per_call=num_envs, steps=steps), fn, box, actions, world, params, env_params))
         except Exception as e:  # noqa: BLE001 - one failing mode must not end the table
             rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
-            rows.append((rec, None, None, fn, box, actions, world, params))
+            rows.append((rec, None, None, fn, box, actions, world, params, env_params))
     for _ in range(args.repeats):  # interleaved timed runs
         for rec, call, t, *_ in rows:
             if call is None or rec.get("error"):
@@ -229,7 +239,7 @@ def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, 
             except Exception as e:  # noqa: BLE001
                 rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
     out = []
-    for rec, call, t, fn, box, actions, world, params in rows:
+    for rec, call, t, fn, box, actions, world, params, env_params in rows:
         if call is not None and not rec.get("error"):
             try:
                 with common.PeakMemory(device) as mem:
@@ -242,21 +252,22 @@ def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, 
                 if not torch.isfinite(box["s"].pose).all():
                     rec["error"] = "non-finite pose after the timed steps"
                 elif not mode.startswith("eager"):
-                    rec.update(_check_against_eager(fn, mode, box["s"], actions[0], world, params))
+                    rec.update(_check_against_eager(fn, mode, box["s"], actions[0], world, params, env_params))
             except Exception as e:  # noqa: BLE001
                 rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
         out.append(rec)
     return out
 
 
-def _check_against_eager(fn, mode: str, state: SimState, action: torch.Tensor, world: World, params: SimParams) -> dict[str, Any]:
+def _check_against_eager(fn, mode: str, state: SimState, action: torch.Tensor, world: World, params: SimParams,
+                         env_params: EnvParams | None = None) -> dict[str, Any]:
     """One step of the compiled ``fn`` against eager ``step`` from the same state (after the timed steps).
 
     Float32 op reordering moves poses by ~1e-6 m; a ray grazing an obstacle edge may flip
     between hit and miss, so ranges are compared as the fraction of rays off by > 1 mm.
     """
     state = state.clone()  # cudagraphs: the carried state lives in memory the next replay overwrites
-    ref = step(state, action, world, params)
+    ref = step(state, action, world, params, env_params=env_params)
     if mode == "cudagraphs":
         torch.compiler.cudagraph_mark_step_begin()
     got = fn(state, action, world).clone()
