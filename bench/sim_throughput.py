@@ -24,6 +24,11 @@ docs/performance.md for the method and what each figure means.
     python bench/sim_throughput.py --json               # plus one JSON object per line
     python bench/sim_throughput.py --quick              # seconds-long smoke run (eager modes only)
     python bench/sim_throughput.py --sizes 4096 --modes eager,compiled --stages
+    python bench/sim_throughput.py --device cpu --sizes 4096 --modes eager --options imu,camera64,movers4
+
+``--options`` adds rows of the same load with one simulator option switched on
+(``OPTIONS``: the IMU, the camera's depth row, moving discs), each next to the plain
+step (option ``plain``) in the same run, and prints their throughput relative to it.
 """
 
 from __future__ import annotations
@@ -41,6 +46,9 @@ import common  # noqa: E402  (sets TORCHINDUCTOR_COMPILE_THREADS before torch is
 import torch  # noqa: E402
 
 from torchnav.sim import (  # noqa: E402
+    CameraParams,
+    EnvParams,
+    ImuParams,
     LidarParams,
     SimParams,
     SimState,
@@ -50,8 +58,10 @@ from torchnav.sim import (  # noqa: E402
     init_state,
     integrate,
     lidar_scan,
+    make_movers,
     make_world,
     planar_world,
+    sample_env_params,
     step,
 )
 from torchnav.sim.step import step_odometry  # noqa: E402
@@ -66,16 +76,30 @@ CUDA_TARGET = 100_000_000  # env-steps/s at the best batch size on one H100
 ARENA_HALF = 5.0  # m: the arena spans [-5, 5] x [-5, 5]
 N_BOXES, N_CIRCLES = 4, 4
 LOAD = "arena 10x10 m, 4 walls + 4 boxes + 4 circles random per env, lidar 20 rays / 180 deg / 10 m"
+# Simulator options benchmarked next to the plain step: name -> (SimParams overrides, moving discs per env).
+OPTIONS: dict[str, tuple[dict[str, Any], int | str]] = {
+    "plain": ({}, 0),
+    "imu": ({"imu": ImuParams()}, 0),  # noise-free: the bench steps without a generator, like the plain rows
+    "camera16": ({"camera": CameraParams(n_cols=16)}, 0),
+    "camera64": ({"camera": CameraParams(n_cols=64)}, 0),
+    "movers4": ({}, 4),  # 4 discs bouncing inside the arena, seen by lidar and collision
+    "pedestrians4": ({}, "pedestrians"),  # 4 pedestrians cycling through 4 waypoints, avoiding each other and the robot
+    "all": ({"imu": ImuParams(), "camera": CameraParams(n_cols=64)}, 4),
+    "randomized": ({}, 0),  # per-env EnvParams: limits, 0-2 steps of actuator delay, lidar offset and range, radius
+}
+# The ranges of the "randomized" option (noise and dropout need a generator, which the bench does not pass).
+RANDOMIZE = {"v_max": (0.3, 0.5), "omega_max": (0.5, 1.0), "lin_acc_max": (1.0, 3.0), "ang_acc_max": (2.0, 4.0), "delay": (0, 2),
+             "angle_offset": (-0.05, 0.05), "max_range": (6.0, 10.0), "robot_radius": (0.15, 0.25)}
 
 
 # -- the load ------------------------------------------------------------------------------------
 
 
-def bench_params() -> SimParams:
-    return SimParams(lidar=LidarParams(n_rays=20, fov=math.pi, max_range=10.0))
+def bench_params(option: str = "plain") -> SimParams:
+    return SimParams(lidar=LidarParams(n_rays=20, fov=math.pi, max_range=10.0), **OPTIONS[option][0])
 
 
-def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | None = None) -> tuple[SimState, World, list[torch.Tensor]]:
+def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | None = None, movers: int | str = 0) -> tuple[SimState, World, list[torch.Tensor]]:
     """Initial state, per-env random world and a few batches of random actions for ``num_envs`` envs.
 
     The world is returned component-major (``planar_world``), converted once as a caller
@@ -115,20 +139,30 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
         raise RuntimeError("could not place every robot in free space")
     actions = [torch.stack((u(params.v_min, params.v_max, b), u(-params.omega_max, params.omega_max, b)), -1) for _ in range(8)]
     world = planar_world(world.to(device))
-    state = init_state(pose.to(device), world, params)
+    discs = None
+    if movers:  # random discs bouncing inside the arena (they may start on a robot: the bench does not care)
+        m = 4 if movers == "pedestrians" else int(movers)
+        rows = torch.stack((u(-3.5, 3.5, b, m), u(-3.5, 3.5, b, m), u(-0.5, 0.5, b, m), u(-0.5, 0.5, b, m), u(0.2, 0.3, b, m)), -1)
+        pts = [[[0.0, 0.0]] * 4] * m if movers == "pedestrians" else None
+        one, mask, plan = make_movers(1, [[0.0, 0.0, 0.5, 0.0, 0.3]] * m, region=(-h, -h, h, h), waypoints=pts, pedestrians=True)
+        plan = torch.zeros(b, m, plan.shape[-1]) + plan  # a fresh tensor, also when empty
+        if movers == "pedestrians":  # 4 random waypoints each
+            plan[..., 4:] = u(-3.5, 3.5, b, m, 8)
+        discs = (torch.cat((rows, one[:, :, 5:].expand(b, -1, -1)), -1).to(device), mask.expand(b, -1).contiguous().to(device), plan.to(device))
+    state = init_state(pose.to(device), world, params, movers=discs)
     return state, world, [a.to(device) for a in actions]
 
 
 # -- step functions --------------------------------------------------------------------------------
 
 
-def step_fn(mode: str, params: SimParams, dynamic: bool) -> Callable[[SimState, torch.Tensor, World], SimState]:
+def step_fn(mode: str, params: SimParams, dynamic: bool, env_params: EnvParams | None = None) -> Callable[[SimState, torch.Tensor, World], SimState]:
     batched = mode.endswith("-batched")
 
     def fn(state: SimState, action: torch.Tensor, world: World) -> SimState:
         if batched:
-            return step(state, action, world, params, unroll=False)
-        return step(state, action, world, params)
+            return step(state, action, world, params, unroll=False, env_params=env_params)
+        return step(state, action, world, params, env_params=env_params)
 
     if mode.startswith("eager"):
         return fn
@@ -149,63 +183,91 @@ def self_check(device: str) -> None:
 # -- timing ----------------------------------------------------------------------------------------
 
 
-def bench_one(mode: str, num_envs: int, device: str, args: argparse.Namespace) -> dict[str, Any]:
-    params = bench_params()
-    state, world, actions = make_load(num_envs, device, seed=args.seed)
-    rec: dict[str, Any] = {
-        "bench": "sim_throughput", "device": device, "num_envs": num_envs, "mode": mode,
-        "env_steps_per_s": None, "env_steps_per_s_min": None, "env_steps_per_s_max": None, "step_us": None,
-        "compile_s": None, "peak_mem_bytes": None, "peak_mem_method": None,
-        "steps": None, "repeats": args.repeats, "threads": torch.get_num_threads(), "load": LOAD,
-    }
-    if mode.startswith("compiled") or mode == "cudagraphs":
-        if not args.dynamic or num_envs == args.sizes[0]:
-            torch._dynamo.reset()  # static shapes: a fresh compile per (mode, size)
-    fn = step_fn(mode, params, args.dynamic)
-    box = {"s": state, "i": 0}
+def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, options: list[str]) -> list[dict[str, Any]]:
+    """One row per option (``"plain"`` first) for ``mode`` at ``num_envs``.
 
-    def call() -> None:
-        if mode == "cudagraphs":
-            torch.compiler.cudagraph_mark_step_begin()
-        box["s"] = fn(box["s"], actions[box["i"] % len(actions)], world)
-        box["i"] += 1
+    Each option's step is compiled, warmed up and calibrated on its own; the timed runs
+    then take turns (run 1 of every option, then run 2, ...), so that a machine shared
+    with other work slows every option alike and the ratios between rows hold."""
+    rows = []
+    for option in options:
+        params = bench_params(option)
+        state, world, actions = make_load(num_envs, device, seed=args.seed, params=params, movers=OPTIONS[option][1])
+        env_params = None
+        if option == "randomized":
+            env_params = sample_env_params(RANDOMIZE, params, num_envs, torch.Generator().manual_seed(args.seed), state.pose)
+            state = init_state(state.pose, world, params, env_params=env_params, delay_steps=2)
+        rec: dict[str, Any] = {
+            "bench": "sim_throughput", "device": device, "num_envs": num_envs, "mode": mode, "option": option,
+            "env_steps_per_s": None, "env_steps_per_s_min": None, "env_steps_per_s_max": None, "step_us": None,
+            "compile_s": None, "peak_mem_bytes": None, "peak_mem_method": None,
+            "steps": None, "repeats": args.repeats, "threads": torch.get_num_threads(), "load": LOAD,
+        }
+        if mode.startswith("compiled") or mode == "cudagraphs":
+            if not args.dynamic or num_envs == args.sizes[0]:
+                torch._dynamo.reset()  # static shapes: a fresh compile per (mode, size, option)
+        fn = step_fn(mode, params, args.dynamic, env_params)
+        box = {"s": state, "i": 0}
 
-    try:
-        if not mode.startswith("eager"):
-            t0 = time.perf_counter()
-            call()  # compiles
-            for _ in range(2):  # cudagraphs records on the first calls after compilation
+        def call(fn=fn, box=box, actions=actions, world=world) -> None:
+            if mode == "cudagraphs":
+                torch.compiler.cudagraph_mark_step_begin()
+            box["s"] = fn(box["s"], actions[box["i"] % len(actions)], world)
+            box["i"] += 1
+
+        try:
+            if not mode.startswith("eager"):
+                t0 = time.perf_counter()
+                call()  # compiles
+                for _ in range(2):  # cudagraphs records on the first calls after compilation
+                    call()
+                common.sync(device)
+                rec["compile_s"] = round(time.perf_counter() - t0, 2)
+            for _ in range(args.warmup):
                 call()
-            common.sync(device)
-            rec["compile_s"] = round(time.perf_counter() - t0, 2)
-        for _ in range(args.warmup):
-            call()
-        steps = args.steps or common.calibrate(call, device, args.run_seconds, lo=3, hi=100_000)
-        t = common.time_calls(call, items_per_call=num_envs, steps=steps, repeats=args.repeats, warmup=0, device=device)
-        with common.PeakMemory(device) as mem:
-            for _ in range(3):
-                call()
-        rec.update(
-            env_steps_per_s=round(t.median, 1), env_steps_per_s_min=round(t.min, 1), env_steps_per_s_max=round(t.max, 1),
-            step_us=round(t.call_us, 2), steps=steps, peak_mem_bytes=mem.bytes, peak_mem_method=mem.method,
-        )
-        if not torch.isfinite(box["s"].pose).all():
-            rec["error"] = "non-finite pose after the timed steps"
-        elif not mode.startswith("eager"):
-            rec.update(_check_against_eager(fn, mode, box["s"], actions[0], world, params))
-    except Exception as e:  # noqa: BLE001 - one failing mode must not end the table
-        rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
-    return rec
+            steps = args.steps or common.calibrate(call, device, args.run_seconds, lo=3, hi=100_000)
+            rows.append((rec, call, common.Timing(items_per_call=num_envs, steps=steps), fn, box, actions, world, params, env_params))
+        except Exception as e:  # noqa: BLE001 - one failing mode must not end the table
+            rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
+            rows.append((rec, None, None, fn, box, actions, world, params, env_params))
+    for _ in range(args.repeats):  # interleaved timed runs
+        for rec, call, t, *_ in rows:
+            if call is None or rec.get("error"):
+                continue
+            try:
+                t.seconds += common.time_calls(call, items_per_call=num_envs, steps=t.steps, repeats=1, warmup=0, device=device).seconds
+            except Exception as e:  # noqa: BLE001
+                rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
+    out = []
+    for rec, call, t, fn, box, actions, world, params, env_params in rows:
+        if call is not None and not rec.get("error"):
+            try:
+                with common.PeakMemory(device) as mem:
+                    for _ in range(3):
+                        call()
+                rec.update(
+                    env_steps_per_s=round(t.median, 1), env_steps_per_s_min=round(t.min, 1), env_steps_per_s_max=round(t.max, 1),
+                    step_us=round(t.call_us, 2), steps=t.steps, peak_mem_bytes=mem.bytes, peak_mem_method=mem.method,
+                )
+                if not torch.isfinite(box["s"].pose).all():
+                    rec["error"] = "non-finite pose after the timed steps"
+                elif not mode.startswith("eager"):
+                    rec.update(_check_against_eager(fn, mode, box["s"], actions[0], world, params, env_params))
+            except Exception as e:  # noqa: BLE001
+                rec["error"] = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"[:300]
+        out.append(rec)
+    return out
 
 
-def _check_against_eager(fn, mode: str, state: SimState, action: torch.Tensor, world: World, params: SimParams) -> dict[str, Any]:
+def _check_against_eager(fn, mode: str, state: SimState, action: torch.Tensor, world: World, params: SimParams,
+                         env_params: EnvParams | None = None) -> dict[str, Any]:
     """One step of the compiled ``fn`` against eager ``step`` from the same state (after the timed steps).
 
     Float32 op reordering moves poses by ~1e-6 m; a ray grazing an obstacle edge may flip
     between hit and miss, so ranges are compared as the fraction of rays off by > 1 mm.
     """
     state = state.clone()  # cudagraphs: the carried state lives in memory the next replay overwrites
-    ref = step(state, action, world, params)
+    ref = step(state, action, world, params, env_params=env_params)
     if mode == "cudagraphs":
         torch.compiler.cudagraph_mark_step_begin()
     got = fn(state, action, world).clone()
@@ -270,6 +332,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--warmup", type=int, default=5, help="untimed steps before timing (default 5)")
     p.add_argument("--dynamic", action=argparse.BooleanOptionalAction, default=False, help="torch.compile(dynamic=...) (default: static shapes, one compile per size)")
     p.add_argument("--stages", action="store_true", help="also time each stage of the step (at 4096 envs or the largest size below)")
+    p.add_argument("--options", type=lambda s: [x for x in s.split(",") if x], default=None,
+                   help=f"comma-separated simulator options to time next to the plain step, from {','.join(o for o in OPTIONS if o != 'plain')}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object per line as well as the tables")
     p.add_argument("--quick", action="store_true", help="tiny sizes, few steps, eager modes only: a smoke test")
@@ -285,6 +349,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     bad = [m for m in args.modes if m not in ALL_MODES]
     if bad:
         p.error(f"unknown mode(s) {bad}; choose from {ALL_MODES}")
+    bad = [o for o in args.options or [] if o not in OPTIONS]
+    if bad:
+        p.error(f"unknown option(s) {bad}; choose from {tuple(OPTIONS)}")
+    args.options = ["plain"] + [o for o in args.options or [] if o != "plain"]
     return args
 
 
@@ -307,16 +375,19 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
         rows, dev_records = [], []
         for n in args.sizes:
             for mode in modes:
-                rec = bench_one(mode, n, device, args)
-                dev_records.append(rec)
-                if args.json:
-                    common.emit_json(rec)
-                rows.append(_row(rec))
-                print(f"   {mode:>16} {n:>6} envs: " + (rec.get("error") or f"{common.human_rate(rec['env_steps_per_s'])} env-steps/s"), file=sys.stderr, flush=True)
+                for rec in bench_rows(mode, n, device, args, args.options):
+                    option = rec["option"]
+                    dev_records.append(rec)
+                    if args.json:
+                        common.emit_json(rec)
+                    rows.append(_row(rec))
+                    print(f"   {mode:>16} {option:>9} {n:>6} envs: " + (rec.get("error") or f"{common.human_rate(rec['env_steps_per_s'])} env-steps/s"), file=sys.stderr, flush=True)
         print(file=log)
-        common.print_table(["mode", "envs", "env-steps/s", "min", "max", "us/step", "compile s", "peak mem", "steps x reps"], rows, file=log)
+        common.print_table(["mode", "option", "envs", "env-steps/s", "min", "max", "us/step", "compile s", "peak mem", "steps x reps"], rows, file=log)
         print(f"   peak mem: {dev_records[0]['peak_mem_method'] or 'n/a'} (over the 3 steps after timing)", file=log)
-        _ratios(dev_records, device, log)
+        plain = [r for r in dev_records if r["option"] == "plain"]
+        _ratios(plain, device, log)
+        _option_ratios(dev_records, log)
         records += dev_records
         if args.stages:
             n = max([s for s in args.sizes if s <= 4096] or [min(args.sizes)])
@@ -336,11 +407,26 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     return records
 
 
+def _option_ratios(records: list[dict[str, Any]], log) -> None:
+    """Throughput of each option relative to the plain step of the same mode and size (same run)."""
+    ok = [r for r in records if not r.get("error")]
+    rate = {(r["mode"], r["num_envs"], r["option"]): r["env_steps_per_s"] for r in ok}
+    lines = []
+    for (mode, n, option), v in rate.items():
+        base = rate.get((mode, n, "plain"))
+        if option != "plain" and base:
+            lines.append(f"   {mode:>16} {n:>6} envs: {option:>9} x{v / base:.2f} of plain (step cost x{base / v:.2f})")
+    if lines:
+        print("\n   options against the plain step at the same mode and size (same run):", file=log)
+        for line in lines:
+            print(line, file=log)
+
+
 def _row(rec: dict[str, Any]) -> list[Any]:
     if rec.get("error"):
-        return [rec["mode"], rec["num_envs"], "ERROR", rec["error"][:60], "", "", "", "", ""]
+        return [rec["mode"], rec["option"], rec["num_envs"], "ERROR", rec["error"][:60], "", "", "", "", ""]
     return [
-        rec["mode"], rec["num_envs"], common.human_rate(rec["env_steps_per_s"]), common.human_rate(rec["env_steps_per_s_min"]),
+        rec["mode"], rec["option"], rec["num_envs"], common.human_rate(rec["env_steps_per_s"]), common.human_rate(rec["env_steps_per_s_min"]),
         common.human_rate(rec["env_steps_per_s_max"]), f"{rec['step_us']:.1f}", rec["compile_s"] if rec["compile_s"] is not None else "-",
         common.human_bytes(rec["peak_mem_bytes"]), f"{rec['steps']}x{rec['repeats']}",
     ]

@@ -31,7 +31,8 @@ def _positive(x) -> bool:
 
 def test_bench_scripts_quick_json():
     cmds = {
-        "sim": [sys.executable, str(ROOT / "bench" / "sim_throughput.py"), "--quick", "--json", "--device", "cpu", "--threads", "1", "--sizes", "1,64"],
+        "sim": [sys.executable, str(ROOT / "bench" / "sim_throughput.py"), "--quick", "--json", "--device", "cpu", "--threads", "1", "--sizes", "1,64",
+                "--options", "imu,camera16,movers4"],
         "env": [sys.executable, str(ROOT / "bench" / "env_throughput.py"), "--quick", "--json", "--threads", "1", "--num-envs", "32"],
     }
     procs = {k: subprocess.Popen(c, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k, c in cmds.items()}
@@ -43,7 +44,8 @@ def test_bench_scripts_quick_json():
 
     sim, sim_log = out["sim"]
     rows = [r for r in sim if r.get("bench") == "sim_throughput"]
-    assert {(r["num_envs"], r["mode"]) for r in rows} == {(n, m) for n in (1, 64) for m in ("eager", "eager-batched")}
+    assert {(r["num_envs"], r["mode"], r["option"]) for r in rows} == {
+        (n, m, o) for n in (1, 64) for m in ("eager", "eager-batched") for o in ("plain", "imu", "camera16", "movers4")}
     for r in rows:
         assert SIM_KEYS <= r.keys(), SIM_KEYS - r.keys()
         assert "error" not in r, r["error"]
@@ -51,6 +53,7 @@ def test_bench_scripts_quick_json():
         assert r["env_steps_per_s_min"] <= r["env_steps_per_s"] <= r["env_steps_per_s_max"]
         assert isinstance(r["peak_mem_bytes"], int) and r["peak_mem_bytes"] >= 0 and r["peak_mem_method"]
     assert "ratios against eager" in sim_log and "env-steps/s" in sim_log  # the table went to stderr
+    assert "camera16 x" in sim_log and "options against the plain step" in sim_log
 
     env, env_log = out["env"]
     rows = {r["mode"]: r for r in env if r.get("bench") == "env_throughput"}

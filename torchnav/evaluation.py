@@ -8,7 +8,7 @@ goals are drawn over the whole map.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Mapping
+from typing import Any, Callable, Mapping, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -51,7 +51,7 @@ def mean_interval(x: torch.Tensor, z: float = Z95) -> tuple[float, float, float]
 
 
 def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
-                worlds: Mapping[str, Any] | None = None) -> NavConfig:
+                worlds: Mapping[str, Any] | None = None, randomize_off: bool | Sequence[str] = ()) -> NavConfig:
     """``cfg`` for evaluation: optionally another map; with ``anywhere`` the curriculum is off.
 
     ``map`` also turns procedural worlds off, so a policy trained on generated worlds is
@@ -63,6 +63,9 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
     With procedural worlds and ``anywhere``, the difficulty is fixed too: at
     ``worlds.max_difficulty`` when training used the difficulty curriculum (its target),
     else at ``worlds.difficulty``.
+
+    ``randomize_off`` switches domain randomisation off: True for every parameter, or the
+    names of those to fix (``cfg.randomize``'s keys), which then take ``robot``/``lidar``'s values.
     """
     if map is not None and worlds is not None:
         raise ValueError("eval_config: give a map or procedural worlds, not both")
@@ -73,6 +76,12 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
         d["worlds"] = {**d["worlds"], "families": {}}
     if worlds is not None:
         d["worlds"] = {**d["worlds"], **worlds, "curriculum": False}
+    if randomize_off:
+        names = list(d["randomize"]) if randomize_off is True else list(randomize_off)
+        unknown = [k for k in names if k not in d["randomize"]]
+        if unknown:
+            raise ValueError(f"eval_config: randomize_off names unknown parameters {unknown}; known: {list(d['randomize'])}")
+        d["randomize"] = {**d["randomize"], **{k: None for k in names}}
     if anywhere:
         over["curriculum"] = {"mode": "off"}
         w = d["worlds"]

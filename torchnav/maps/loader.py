@@ -20,7 +20,7 @@ from typing import Any
 
 from ..yamlcheck import Ctx, check_bool, check_count, check_mapping, check_number, check_grey_level, check_range, check_vector, load_yaml, read_named, shipped_names, show
 from .occupancy import ImageError, mask_boxes, read_mask
-from .spec import MapError, MapSpec, RandomBoxes, RandomCircles
+from .spec import MOTIONS, MapError, MapSpec, MovingCircles, RandomBoxes, RandomCircles
 
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
 _TOL = 1e-6
@@ -199,7 +199,36 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
     return rc
 
 
-_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles")
+def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> MovingCircles:
+    k = "moving_circles"
+    v = check_mapping(ctx, v, k, ("count", "radius", "speed"), ("motion", "region", "clearance", "margin", "waypoints"))
+    d = MovingCircles.__dataclass_fields__
+    motion = v.get("motion", d["motion"].default)
+    if motion not in MOTIONS:
+        raise ctx.fail(f"{k}.motion", f"expected one of {', '.join(MOTIONS)}, got {show(motion)}")
+    region = None
+    if v.get("region") is not None:
+        region = check_vector(ctx, v["region"], f"{k}.region", 4)
+        if not (region[0] < region[2] and region[1] < region[3]):
+            raise ctx.fail(f"{k}.region", f"expected [xmin, ymin, xmax, ymax] with xmin < xmax and ymin < ymax, got {show(v['region'])}")
+        _inside(ctx, f"{k}.region", "a corner", [region[0], region[2]], [region[1], region[3]], size)
+    mc = MovingCircles(
+        count=check_count(ctx, v["count"], f"{k}.count", MAX_RANDOM),
+        radius=check_range(ctx, v["radius"], f"{k}.radius", "pos"),
+        speed=check_range(ctx, v["speed"], f"{k}.speed", "nonneg"),
+        motion=motion, region=region,
+        clearance=check_number(ctx, v.get("clearance", d["clearance"].default), f"{k}.clearance", "nonneg"),
+        margin=check_number(ctx, v.get("margin", d["margin"].default), f"{k}.margin", "nonneg"),
+        waypoints=check_count(ctx, v.get("waypoints", d["waypoints"].default), f"{k}.waypoints", 64),
+    )
+    if mc.waypoints < 1:
+        raise ctx.fail(f"{k}.waypoints", f"expected an integer in [1, 64], got {show(mc.waypoints)}")
+    w, h = (region[2] - region[0], region[3] - region[1]) if region else size
+    _fits(ctx, f"{k}.radius", 2 * mc.radius[1], (w, h))
+    return mc
+
+
+_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles", "moving_circles")
 
 
 def parse_map(
@@ -238,6 +267,7 @@ def parse_map(
         + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
         random_boxes=_random_boxes(ctx, d["random_boxes"], size) if "random_boxes" in d else None,
         random_circles=_random_circles(ctx, d["random_circles"], size) if "random_circles" in d else None,
+        moving_circles=_moving_circles(ctx, d["moving_circles"], size) if "moving_circles" in d else None,
     )
 
 

@@ -41,6 +41,29 @@ class RandomCircles:
     margin: float = 0.1  # m, min gap to fixed obstacles, walls and other random objects
 
 
+MOTIONS = ("bounce", "constant", "patrol", "pedestrian")
+
+
+@dataclass(frozen=True)
+class MovingCircles:
+    """Moving discs the task places at random on every reset (``moving_circles`` in YAML).
+
+    Each gets a speed in ``speed``. ``bounce``: a uniformly random heading, bouncing inside
+    ``region`` (default: the whole map); ``constant``: the same, driving straight on (through
+    walls, out of the map); ``patrol``: cycles through ``waypoints`` random points of the
+    region; ``pedestrian``: the same, steering around the other movers and the robot
+    (``torchnav/sim/movers.py``)."""
+
+    count: int  # movers per env
+    radius: tuple[float, float]  # m, (min, max)
+    speed: tuple[float, float]  # m/s, (min, max)
+    motion: str = "bounce"  # "bounce" inside `region` | "constant" velocity
+    region: tuple[float, float, float, float] | None = None  # (xmin, ymin, xmax, ymax) m; None: the map's bounds
+    clearance: float = 1.0  # m, min distance from the robot start and from the goal at reset
+    margin: float = 0.1  # m, min gap to obstacles, walls and other movers at reset
+    waypoints: int = 4  # random waypoints per mover ("patrol", "pedestrian")
+
+
 @dataclass(frozen=True)
 class MapSpec:
     """A validated map. Geometry is in world metres, in the layouts of :class:`World`.
@@ -55,6 +78,7 @@ class MapSpec:
         boxes: fixed boxes ``(cx, cy, half_x, half_y, yaw)``: HALF extents in m, yaw in rad;
             ``boxes``, then the boxes covering the ``occupancy`` image.
         random_boxes / random_circles: what the task re-places on reset, or None.
+        moving_circles: the moving discs the task places on reset, or None.
     """
 
     name: str
@@ -65,6 +89,7 @@ class MapSpec:
     boxes: tuple[tuple[float, float, float, float, float], ...] = ()
     random_boxes: RandomBoxes | None = None
     random_circles: RandomCircles | None = None
+    moving_circles: MovingCircles | None = None
 
     @property
     def n_fixed_boxes(self) -> int:

@@ -21,7 +21,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .mcap_writer import EpisodeRecorder
+from .mcap_writer import _SHARED, EpisodeRecorder
 
 
 class LiveView(EpisodeRecorder):
@@ -55,9 +55,9 @@ class LiveView(EpisodeRecorder):
         self.port = self.server.port
         schemas = {k: foxglove.Schema(name=s["title"], encoding="jsonschema", data=json.dumps(s).encode()) for k, s in self.schemas().items()}
         for st in self.streams:
-            st.channels = {name: foxglove.Channel(f"/env{st.env}/{name}", schema=schemas["odom" if name == "odom_estimate" else name],
+            st.channels = {name: foxglove.Channel(f"/env{st.env}/{name}", schema=schemas[_SHARED.get(name, name)],
                                                   message_encoding="json", context=self._context)
-                           for name in self.TOPICS}
+                           for name in self.topics}
         self._wall0 = time.monotonic()
 
     def _add(self, channel: Any, t_ns: int, payload: str) -> None:

@@ -45,8 +45,9 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from ..sim import camera_image, mover_world
 from . import scene
-from .schemas import action_schema, event_schema, foxglove_schema, reward_schema
+from .schemas import action_schema, event_schema, foxglove_schema, imu_schema, movers_schema, reward_schema
 
 
 class RecordingWarning(UserWarning):
@@ -95,6 +96,9 @@ def _version() -> str:
     from .. import __version__
 
     return __version__
+
+
+_SHARED = {"odom_estimate": "odom", "camera_depth": "camera"}  # topics that use another topic's schema
 
 
 class EpisodeRecorder:
@@ -162,6 +166,13 @@ class EpisodeRecorder:
         self.end_reasons = tuple(getattr(env, "end_reasons", ()))
         scene_lines = getattr(env, "scene_lines", None)
         self.scene_lines = scene_lines() if callable(scene_lines) else {}
+        # Optional sensors: an IMU, a camera (RGB and depth images, rendered for the recorded envs only)
+        # and moving obstacles get their own topics when the env's simulator has them.
+        params = getattr(env.task, "params", None)
+        self.imu = getattr(params, "imu", None) is not None
+        self.camera = getattr(params, "camera", None)
+        self.movers = getattr(env.task, "n_movers", 0) > 0
+        self.topics = self.TOPICS + (("imu",) if self.imu else ()) + (("camera", "camera_depth") if self.camera else ()) + (("movers",) if self.movers else ())
         self.streams = [scene.EnvStream(i, env, self) for i in self.envs]
         self._writer = None
         self._file = None
@@ -182,6 +193,9 @@ class EpisodeRecorder:
             "scene": foxglove_schema("SceneUpdate"), "odom": foxglove_schema("Odometry"),
             "action": action_schema(self.env.action_spec.shape[-1]), "reward": reward_schema(self.term_names),
             "events": event_schema(),
+            **({"imu": imu_schema()} if self.imu else {}),
+            **({"camera": foxglove_schema("RawImage")} if self.camera else {}),
+            **({"movers": movers_schema()} if self.movers else {}),
         }
 
     def _open(self, metadata: Mapping[str, Any]) -> None:
@@ -194,8 +208,8 @@ class EpisodeRecorder:
         sid = {k: self._writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode()) for k, s in self.schemas().items()}
         for st in self.streams:
             st.channels = {
-                name: self._writer.register_channel(f"/env{st.env}/{name}", "json", sid["odom" if name == "odom_estimate" else name])
-                for name in self.TOPICS
+                name: self._writer.register_channel(f"/env{st.env}/{name}", "json", sid[_SHARED.get(name, name)])
+                for name in self.topics
             }
         self._writer.add_metadata("torchnav", self._metadata(metadata))
         self._flush_file()
@@ -348,13 +362,22 @@ class EpisodeRecorder:
             out["terms"] = torch.cat([terms.get(k) for k in self.term_names], -1)
         if state is not None:
             out.update(odom1=state.sim.odom, vel1=state.sim.vel)
+            if self.imu:
+                out["imu1"] = state.sim.imu
+            if self.movers:
+                out["movers1"] = torch.cat((state.sim.movers[..., :5], state.sim.mover_mask[..., None].to(state.sim.movers.dtype)), -1)
             w = getattr(state, "world", None)
             if w is not None:
                 out.update(segments=w.segments, segment_mask=w.segment_mask, circles=w.circles, circle_mask=w.circle_mask,
                            boxes=w.boxes, box_mask=w.box_mask)
         else:
             out["vel1"] = self.env.task.command(td.get("action"))
-        return TensorDict({k: v.index_select(0, idx).detach() for k, v in out.items()}, batch_size=[len(self.envs)])
+        sel = {k: v.index_select(0, idx).detach() for k, v in out.items()}
+        if state is not None and self.camera is not None:  # rendered for the recorded envs only
+            sim = state.sim[idx]
+            mw = mover_world(sim.movers, sim.mover_mask) if sim.movers.shape[1] else None
+            sel["depth1"], sel["rgb1"] = camera_image(sim.pose, state.world[idx], self.camera, mw)
+        return TensorDict(sel, batch_size=[len(self.envs)])
 
     def _drain(self, force_flush: bool = False) -> None:
         if not self.enabled:

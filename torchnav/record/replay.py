@@ -18,6 +18,7 @@ summary counts the termination reasons (``left_line``, ``stalled``, ...).
 from __future__ import annotations
 
 import argparse
+import base64
 import json
 import math
 import sys
@@ -71,7 +72,9 @@ def _short(v, n: int = 60) -> str:
 
 
 def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
-    """Arrays of one episode: ``time (N,)`` s, ``pose (N, 3)``, ``ranges (N, R)``, ``reward (N,)`` (0 at the start frame)."""
+    """Arrays of one episode: ``time (N,)`` s, ``pose (N, 3)``, ``ranges (N, R)``, ``reward (N,)`` (0 at the start frame),
+    and where recorded ``movers (N, M, 5)`` ``[x, y, vx, vy, radius]`` and ``camera (N, H, W, 3)`` uint8 (the start
+    frame, which has neither, repeats the first step's)."""
     t0, t1 = ep.start_time, ep.end_time
     odom = rec.topic(f"/env{ep.env}/odom", t0, t1)
     scans = {m.log_time: m.data["ranges"] for m in rec.topic(f"/env{ep.env}/scan", t0, t1)}
@@ -84,8 +87,21 @@ def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
         ranges.append(scans.get(m.log_time, []))
         reward.append(rewards.get(m.log_time, 0.0))
         times.append((m.log_time - t0) / 1e9)
-    return {"time": np.asarray(times), "pose": np.asarray(pose).reshape(-1, 3), "ranges": np.asarray(ranges, dtype=float),
-            "reward": np.asarray(reward)}
+    out = {"time": np.asarray(times), "pose": np.asarray(pose).reshape(-1, 3), "ranges": np.asarray(ranges, dtype=float),
+           "reward": np.asarray(reward)}
+    movers = {m.log_time: np.asarray(m.data["discs"], dtype=float).reshape(-1, 5) for m in rec.topic(f"/env{ep.env}/movers", t0, t1)}
+    images = {m.log_time: m.data for m in rec.topic(f"/env{ep.env}/camera", t0, t1)}
+    for key, per_time, decode in (("movers", movers, lambda a: a), ("camera", images, _decode_rgb)):
+        if per_time:
+            first = per_time[min(per_time)]
+            out[key] = np.stack([decode(per_time.get(m.log_time, first)) for m in odom])
+    return out
+
+
+def _decode_rgb(msg: dict) -> np.ndarray:
+    """A ``foxglove.RawImage`` (``rgb8``) message as an ``(H, W, 3)`` uint8 array."""
+    data = np.frombuffer(base64.b64decode(msg["data"]), dtype=np.uint8)
+    return data.reshape(msg["height"], msg["step"])[:, : 3 * msg["width"]].reshape(msg["height"], msg["width"], 3)
 
 
 def scene_lines(rec: Recording, ep: Episode) -> dict[str, dict]:
@@ -155,8 +171,11 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
     if idx[-1] != len(fr["pose"]) - 1:
         idx.append(len(fr["pose"]) - 1)
 
-    fig = Figure(figsize=(9, 4.5), dpi=dpi)
-    ax, axr = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    cam = fr.get("camera")
+    fig = Figure(figsize=(9 if cam is None else 13, 4.5), dpi=dpi)
+    n_panels = 2 if cam is None else 3
+    ax, axr = fig.add_subplot(1, n_panels, 1), fig.add_subplot(1, n_panels, 2)
+    axc = fig.add_subplot(1, n_panels, 3) if cam is not None else None
     axr2 = axr.twinx()
     pts = np.concatenate([np.asarray(world["segments"], dtype=float).reshape(-1, 2), fr["pose"][:, :2], goal,
                           *(t["segments"].reshape(-1, 2) for t in tapes.values())])
@@ -185,7 +204,13 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
         ax.plot(fr["pose"][: i + 1, 0], fr["pose"][: i + 1, 1], "-", color=trail_color, lw=1.2, alpha=0.8, zorder=3)
         if show_rays and fr["ranges"].ndim == 2 and fr["ranges"].shape[1] == lidar.n_rays:
             draw_rays(ax, fr["pose"][i : i + 1], fr["ranges"][i : i + 1], lidar, env=0)
+        if "movers" in fr:
+            draw_obstacles(ax, np.zeros((0, 4)), fr["movers"][i][:, [0, 1, 4]], np.zeros((0, 5)), color="#d23c3c")
         draw_robots(ax, fr["pose"][i : i + 1], radius, env=0)
+        if axc is not None:
+            axc.clear()
+            axc.imshow(cam[i], interpolation="nearest")
+            axc.set(xticks=[], yticks=[], title="camera")
         ax.set_title(f"env {ep.env} episode {ep.episode}: {ep.outcome}  t={fr['time'][i]:.1f} s", fontsize=9)
         axr.clear()
         axr.plot(fr["time"], fr["reward"], color="0.6", lw=1, label="reward")

@@ -8,6 +8,7 @@ boxes, circles, goal) is encoded once per episode and spliced into every step's
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 from typing import Any
@@ -21,8 +22,9 @@ ROBOT_HEIGHT = 0.25  # m
 COLORS = {
     "wall": (0.25, 0.25, 0.25, 1.0), "box": (0.55, 0.55, 0.55, 1.0), "circle": (0.55, 0.55, 0.55, 1.0),
     "goal": (0.2, 0.75, 0.3, 0.6), "robot": (0.12, 0.47, 0.71, 1.0), "trail": (0.12, 0.47, 0.71, 0.8),
-    "arrow": (0.0, 0.0, 0.0, 1.0), "estimate": (0.96, 0.62, 0.0, 1.0),
+    "arrow": (0.0, 0.0, 0.0, 1.0), "estimate": (0.96, 0.62, 0.0, 1.0), "mover": (0.82, 0.24, 0.24, 1.0),
 }
+MOVER_HEIGHT = 1.0  # m, only for the 3D view
 _EMPTY = {"arrows": [], "cubes": [], "spheres": [], "cylinders": [], "lines": [], "triangles": [], "texts": [], "models": []}
 
 
@@ -121,7 +123,8 @@ class EnvStream:
         self.ep_step += 1
         self.steps_written += 1
         p1 = r["pose1"]
-        self._frame(p1, r["ranges1"], (v1, w1), r.get("odom1"))
+        self._frame(p1, r["ranges1"], (v1, w1), r.get("odom1"), r.get("movers1"))
+        self._sensors(r)
         reward = float(r["reward"])
         self.ep_return = float(r["ret"])
         terms = {k: _f(x) for k, x in zip(self.rec.term_names, r["terms"])} if "terms" in r else {}
@@ -198,7 +201,27 @@ class EnvStream:
             out.append(entity(t, self.frame, name, lines=[line_list(spec["segments"], spec["thickness"], spec["color"])]))
         return out
 
-    def _frame(self, p: np.ndarray, ranges: np.ndarray, vel: tuple[float, float], odom: np.ndarray | None) -> None:
+    def _sensors(self, r: dict[str, np.ndarray]) -> None:
+        """IMU reading, camera images and movers of the state after the step, if recorded."""
+        ts = stamp(self.t)
+        if "imu1" in r:
+            ax, ay, wz = (_f(x) for x in r["imu1"])
+            self._add("imu", {"timestamp": ts, "frame_id": self.base, "linear_acceleration": {"x": ax, "y": ay, "z": 0.0},
+                              "angular_velocity": {"x": 0.0, "y": 0.0, "z": wz}})
+        if "rgb1" in r:
+            rgb, depth = np.ascontiguousarray(r["rgb1"], dtype=np.uint8), np.ascontiguousarray(r["depth1"], dtype="<f4")
+            h, w = rgb.shape[:2]
+            frame = f"env{self.env}/camera"
+            self._add("camera", {"timestamp": ts, "frame_id": frame, "width": w, "height": h, "encoding": "rgb8",
+                                 "step": 3 * w, "data": base64.b64encode(rgb.tobytes()).decode()})
+            self._add("camera_depth", {"timestamp": ts, "frame_id": frame, "width": w, "height": 1, "encoding": "32FC1",
+                                       "step": 4 * w, "data": base64.b64encode(depth.tobytes()).decode()})
+        if "movers1" in r:
+            m = r["movers1"]
+            self._add("movers", {"env": self.env, "episode": self.episode, "discs": sum(_rows(m[:, :5], m[:, 5] > 0.5), [])})
+
+    def _frame(self, p: np.ndarray, ranges: np.ndarray, vel: tuple[float, float], odom: np.ndarray | None,
+               movers: np.ndarray | None = None) -> None:
         """tf, scan, scene and odometry of the state at the current tick."""
         x, y, yaw = _f(p[0]), _f(p[1]), _f(p[2])
         ts = stamp(self.t)
@@ -231,6 +254,10 @@ class EnvStream:
             extra = "," + json.dumps(entity(self.t, self.frame, "estimate", arrows=[{
                 "pose": pose(_f(odom[0]), _f(odom[1]), _f(odom[2]), ROBOT_HEIGHT + 0.02), "shaft_length": self.radius,
                 "shaft_diameter": 0.03, "head_length": 0.08, "head_diameter": 0.08, "color": color("estimate")}]))
+        if movers is not None:  # moving discs, redrawn every step
+            extra += "," + json.dumps(entity(self.t, self.frame, "movers", cylinders=[
+                {"pose": pose(c[0], c[1], 0.0, MOVER_HEIGHT / 2), "size": {"x": 2 * c[4], "y": 2 * c[4], "z": MOVER_HEIGHT},
+                 "bottom_scale": 1.0, "top_scale": 1.0, "color": color("mover")} for c in _rows(movers, movers[:, 5] > 0.5)]))
         self._add("scene", '{"deletions":[],"entities":[' + self.static + "," + json.dumps(robot) + "," + trail + extra + "]}")
         lin = {"x": _f(vel[0]), "y": 0.0, "z": 0.0}
         ang = {"x": 0.0, "y": 0.0, "z": _f(vel[1])}

@@ -214,6 +214,36 @@ def reward_schema(term_names: Sequence[str]) -> dict:
     }
 
 
+def imu_schema() -> dict:
+    return {
+        "title": "torchnav.Imu",
+        "description": "The robot's planar IMU reading after a step, in the robot frame (x forward, y left)",
+        "type": "object",
+        "properties": {
+            "timestamp": {"type": "object", "properties": {"sec": _INT, "nsec": _INT}},
+            "frame_id": {"type": "string", "description": "the robot's base frame"},
+            "linear_acceleration": {"type": "object", "description": "m/s^2, bias and noise included (z is 0: no gravity)",
+                                    "properties": {"x": _NUM, "y": _NUM, "z": _NUM}},
+            "angular_velocity": {"type": "object", "description": "rad/s, bias and noise included (only z, the yaw rate)",
+                                 "properties": {"x": _NUM, "y": _NUM, "z": _NUM}},
+        },
+        "required": ["timestamp", "frame_id", "linear_acceleration", "angular_velocity"],
+    }
+
+
+def movers_schema() -> dict:
+    return {
+        "title": "torchnav.Movers",
+        "description": "The moving obstacles of one env after a step",
+        "type": "object",
+        "properties": {
+            "env": _INT, "episode": _INT,
+            "discs": {"type": "array", "items": _NUM, "description": "existing movers [x m, y m, vx m/s, vy m/s, radius m], 5 numbers each, one after the other"},
+        },
+        "required": ["env", "episode", "discs"],
+    }
+
+
 EVENT_KINDS = ("start", "success", "collision", "timeout", "terminated")
 
 

@@ -8,12 +8,16 @@ in m/s.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import torch
 from torch import Tensor
 
 from .math import safe_sinc, wrap_angle
 from .params import SimParams
+
+if TYPE_CHECKING:
+    from .randomize import EnvParams
 
 
 def wheels_to_unicycle(wheels: Tensor, track_width: float) -> Tensor:
@@ -29,15 +33,26 @@ def unicycle_to_wheels(twist: Tensor, track_width: float) -> Tensor:
     return torch.stack((v - half, v + half), dim=-1)
 
 
-def apply_limits(cmd: Tensor, prev: Tensor, params: SimParams) -> Tensor:
+def apply_limits(cmd: Tensor, prev: Tensor, params: SimParams, env: "EnvParams | None" = None) -> Tensor:
     """Clamp a commanded twist ``(B, 2)`` to the speed limits and, if finite, to the
     acceleration limits relative to the previous twist ``prev`` ``(B, 2)``.
 
     Non-finite commands (NaN, inf) are replaced by 0 before limiting, i.e. the robot
     is told to stop, so one bad action never puts NaN into the state. The
     environment layer rejects such actions with an error by default.
+
+    ``env`` (``randomize.EnvParams``) gives per-env limits instead of ``params``'
+    (``v_min`` scales with ``v_max``).
     """
     cmd = torch.where(torch.isfinite(cmd), cmd, torch.zeros_like(cmd))
+    if env is not None:
+        v_max, w_max = env.v_max, env.omega_max
+        v = torch.minimum(torch.maximum(cmd[:, 0], v_max * (params.v_min / params.v_max if params.v_max else 0.0)), v_max)
+        w = torch.minimum(torch.maximum(cmd[:, 1], -w_max), w_max)
+        dv, dw = env.lin_acc_max * params.dt, env.ang_acc_max * params.dt
+        v = torch.minimum(torch.maximum(v, prev[:, 0] - dv), prev[:, 0] + dv)
+        w = torch.minimum(torch.maximum(w, prev[:, 1] - dw), prev[:, 1] + dw)
+        return torch.stack((v, w), dim=-1)
     v = cmd[:, 0].clamp(params.v_min, params.v_max)
     w = cmd[:, 1].clamp(-params.omega_max, params.omega_max)
     if math.isfinite(params.lin_acc_max):

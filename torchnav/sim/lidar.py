@@ -57,6 +57,7 @@ def lidar_scan(
     lidar: LidarParams,
     generator: torch.Generator | None = None,
     unroll: bool | None = None,
+    movers: World | None = None,
 ) -> Tensor:
     """Lidar ranges in m, ``(B, n_rays)``, for robots at ``pose`` ``(B, 3)`` in ``world``.
 
@@ -66,12 +67,15 @@ def lidar_scan(
     Misses read ``max_range``; returns closer than ``min_range`` read ``min_range``.
     With ``lidar.noise_std > 0`` and a ``generator``, Gaussian noise is added before
     clamping (no generator: no noise, so results stay reproducible by default).
+
+    ``movers`` is a second world (the moving obstacles, ``movers.mover_world``) scanned
+    as well: the scan of the union of two worlds is the minimum of their scans.
     """
     fan = lidar_fan(pose, lidar)
-    if lidar.scan == "sectors":
-        ranges = sector_ranges(fan, world, lidar.window, lidar.dense_slots, unroll)
-    else:
-        ranges = cast_fan(fan, world, lidar.window, lidar.dense_slots, unroll)
+    scan = sector_ranges if lidar.scan == "sectors" else cast_fan
+    ranges = scan(fan, world, lidar.window, lidar.dense_slots, unroll)
+    if movers is not None:
+        ranges = torch.minimum(ranges, scan(fan, movers, lidar.window, lidar.dense_slots, unroll))
     if lidar.noise_std > 0 and generator is not None:
         ranges = ranges + lidar.noise_std * torch.randn(ranges.shape, generator=generator, dtype=ranges.dtype, device=ranges.device)
     return ranges.clamp(lidar.min_range, lidar.max_range)

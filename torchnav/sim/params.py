@@ -74,6 +74,82 @@ class LidarParams:
 
 
 @dataclass(frozen=True)
+class ImuParams:
+    """A planar IMU (``imu.py``): body-frame acceleration ``[a_x, a_y]`` and yaw rate.
+
+    Noise and bias walks are drawn from the step's generator; ``rate`` in Hz makes
+    the reading sample-and-hold (``inf``: a new reading every step).
+    """
+
+    accel_noise: float = 0.0  # m/s^2, std of white noise on each acceleration reading
+    gyro_noise: float = 0.0  # rad/s, std of white noise on each yaw-rate reading
+    accel_bias_walk: float = 0.0  # m/s^2 per sqrt(s), random walk of the acceleration bias
+    gyro_bias_walk: float = 0.0  # rad/s per sqrt(s), random walk of the gyro bias
+    rate: float = math.inf  # Hz; readings update only when a sample tick falls in the step
+
+    def __post_init__(self) -> None:
+        for name in ("accel_noise", "gyro_noise", "accel_bias_walk", "gyro_bias_walk"):
+            v = getattr(self, name)
+            _require(math.isfinite(v) and v >= 0.0, f"imu.{name} must be a finite number >= 0, got {v!r}")
+        _require(self.rate > 0, f"imu.rate must be > 0 Hz (inf: every step), got {self.rate!r}")
+
+
+RGB = tuple[int, int, int]
+
+
+@dataclass(frozen=True)
+class CameraParams:
+    """A forward pinhole camera rendered by ray casting the 2D world (``camera.py``).
+
+    Column ``j`` of ``n_cols`` (0 on the left of the image) looks along the sensor-frame
+    angle ``atan((n_cols/2 - j - 1/2) / f)`` with ``f = (n_cols/2) / tan(fov/2)``, so
+    the columns are evenly spaced on the image plane. Pixels are square: the image's
+    ``n_rows`` rows share the focal length. Obstacles stand on the floor as prisms of
+    the kind's height and colour.
+    """
+
+    n_cols: int = 64  # image width, pixels (= depth readings)
+    n_rows: int = 48  # image height, pixels (RGB only)
+    fov: float = math.pi / 2  # horizontal field of view, rad (0, pi)
+    max_range: float = 10.0  # m; misses and farther hits read max_range in the depth row
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose in the robot frame: x m, y m, yaw rad
+    height: float = 0.3  # m, the camera's height above the floor
+    wall_height: float = 1.0  # m
+    circle_height: float = 0.8  # m
+    box_height: float = 0.5  # m
+    mover_height: float = 1.7  # m, moving obstacles (pedestrian-sized)
+    wall_color: RGB = (170, 170, 170)
+    circle_color: RGB = (60, 150, 80)
+    box_color: RGB = (200, 120, 60)
+    mover_color: RGB = (210, 60, 60)
+    floor_color: RGB = (90, 85, 80)
+    sky_color: RGB = (150, 190, 235)
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.n_cols, int) and self.n_cols >= 1, f"camera.n_cols must be a positive int, got {self.n_cols!r}")
+        _require(isinstance(self.n_rows, int) and self.n_rows >= 1, f"camera.n_rows must be a positive int, got {self.n_rows!r}")
+        _require(0.0 < self.fov < math.pi, f"camera.fov must be in (0, pi) rad, got {self.fov!r}")
+        _require(0.0 < self.max_range < math.inf, f"camera.max_range must be a finite number > 0 m, got {self.max_range!r}")
+        _require(len(self.offset) == 3, f"camera.offset must be (x, y, yaw), got {self.offset!r}")
+        _require(self.height >= 0.0, f"camera.height must be >= 0 m, got {self.height!r}")
+        for name in ("wall_height", "circle_height", "box_height", "mover_height"):
+            _require(getattr(self, name) > 0.0, f"camera.{name} must be > 0 m, got {getattr(self, name)!r}")
+        for name in ("wall_color", "circle_color", "box_color", "mover_color", "floor_color", "sky_color"):
+            c = getattr(self, name)
+            _require(len(c) == 3 and all(isinstance(x, int) and 0 <= x <= 255 for x in c), f"camera.{name} must be 3 ints in [0, 255], got {c!r}")
+
+    @property
+    def focal(self) -> float:
+        """Focal length in pixels."""
+        return 0.5 * self.n_cols / math.tan(0.5 * self.fov)
+
+    def angles(self) -> list[float]:
+        """Column angles (rad) in the sensor frame, left column first (CCW positive)."""
+        f = self.focal
+        return [math.atan((0.5 * self.n_cols - j - 0.5) / f) for j in range(self.n_cols)]
+
+
+@dataclass(frozen=True)
 class SimParams:
     """Differential-drive robot and world-step parameters."""
 
@@ -89,6 +165,8 @@ class SimParams:
     odom_v_noise: float = 0.0  # m/s, std of per-step noise on the odometry's speed
     odom_omega_noise: float = 0.0  # rad/s, std of per-step noise on the odometry's turn rate
     lidar: LidarParams = field(default_factory=LidarParams)
+    imu: ImuParams | None = None  # None: no IMU (state.imu is (B, 0))
+    camera: CameraParams | None = None  # None: no camera (state.cam_depth is (B, 0))
 
     def __post_init__(self) -> None:
         _require(self.dt > 0, f"dt must be > 0 s, got {self.dt!r}")
@@ -100,3 +178,5 @@ class SimParams:
         _require(self.integrator in INTEGRATORS, f"integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
         _require(self.odom_v_noise >= 0 and self.odom_omega_noise >= 0, "odometry noise std must be >= 0")
         _require(isinstance(self.lidar, LidarParams), f"lidar must be a LidarParams, got {type(self.lidar).__name__}")
+        _require(self.imu is None or isinstance(self.imu, ImuParams), f"imu must be an ImuParams or None, got {type(self.imu).__name__}")
+        _require(self.camera is None or isinstance(self.camera, CameraParams), f"camera must be a CameraParams or None, got {type(self.camera).__name__}")

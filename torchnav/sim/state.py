@@ -52,6 +52,16 @@ class SimState:
             (negative when penetrating).
         collided: ``(B,)`` bool, ``clearance <= 0``.
         time: ``(B,)`` simulated time in s since the last reset.
+        imu: ``(B, 3)`` IMU reading ``[a_x m/s^2, a_y m/s^2, yaw rate rad/s]`` in the body
+            frame (``imu.py``); ``(B, 0)`` without an IMU (``SimParams.imu`` None).
+        imu_bias: ``(B, 3)`` the IMU's current bias (same units); ``(B, 0)`` without an IMU.
+        cam_depth: ``(B, n_cols)`` camera depth row in m (``camera.py``); ``(B, 0)`` without a camera.
+        movers: ``(B, M, 9)`` moving obstacles (``movers.py``); ``M`` may be 0.
+        mover_mask: ``(B, M)`` bool, which mover slots exist.
+        mover_plan: ``(B, M, 4 + 2P)`` waypoints of patrols and pedestrians (``movers.py``);
+            ``(B, M, 0)`` when every mover is ballistic.
+        cmd_queue: ``(B, K, 2)`` the last ``K`` commands, newest first, for an actuator
+            delay of up to ``K`` steps (``randomize.py``); ``(B, 0, 2)`` without delay.
     """
 
     pose: Tensor
@@ -61,6 +71,13 @@ class SimState:
     clearance: Tensor
     collided: Tensor
     time: Tensor
+    imu: Tensor
+    imu_bias: Tensor
+    cam_depth: Tensor
+    movers: Tensor
+    mover_mask: Tensor
+    mover_plan: Tensor
+    cmd_queue: Tensor
 
 
 def _as_rows(x, width: int, name: str, dtype, device) -> Tensor:

@@ -4,7 +4,10 @@
 never synchronises with the host, so it can be differentiated, compiled with
 ``torch.compile`` and captured in CUDA graphs.
 
-    limits -> kinematics -> odometry -> collision -> lidar
+    limits -> kinematics -> odometry -> imu -> movers -> collision -> lidar -> camera
+
+The IMU and the camera run only when ``SimParams.imu`` / ``SimParams.camera`` are
+set; the movers only when the state holds mover slots.
 """
 
 from __future__ import annotations
@@ -12,10 +15,14 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from .camera import camera_depth
 from .geometry import disc_clearance
-from .kinematics import apply_limits, integrate, wheels_to_unicycle
+from .imu import step_imu
+from .kinematics import apply_limits, integrate, unicycle_to_wheels, wheels_to_unicycle
 from .lidar import lidar_scan
+from .movers import Movers, mover_world, no_movers, step_movers
 from .params import SimParams
+from .randomize import EnvParams
 from .state import SimState, World, check_world, planar_world
 
 
@@ -41,6 +48,7 @@ def step(
     wheel_speeds: bool = False,
     generator: torch.Generator | None = None,
     unroll: bool | None = None,
+    env_params: EnvParams | None = None,
 ) -> SimState:
     """Advance every env by ``params.dt``.
 
@@ -55,6 +63,8 @@ def step(
         unroll: the lidar's every-ray reduction (``raycast.py``): a running minimum over
             obstacle slots (True), one ``(B, R, N)`` minimum (False), or chosen per set of
             slots by its size (None, the default); the result is the same up to rounding.
+        env_params: per-env limits, actuator delay, wheel noise, lidar imperfections and
+            robot radius (``randomize.py``) instead of ``params``' values.
     Returns:
         The new state; ``state`` is left untouched.
     """
@@ -62,20 +72,51 @@ def step(
     check_world(world, state.pose.shape[0], state.pose.dtype, state.pose.device)
     world = planar_world(world)
     cmd = wheels_to_unicycle(action, params.track_width) if wheel_speeds else action
-    vel = apply_limits(cmd, state.vel, params)
+    queue = state.cmd_queue
+    if queue.shape[1]:  # actuator delay: apply the command of `delay` steps ago
+        full = torch.cat((cmd[:, None], queue), 1)  # (B, K + 1, 2), newest first
+        delay = env_params.delay.clamp(0, queue.shape[1]) if env_params is not None else torch.zeros_like(cmd[:, 0], dtype=torch.int64)
+        cmd, queue = full.gather(1, delay[:, None, None].expand(-1, 1, 2)).squeeze(1), full[:, :-1]
+    vel = apply_limits(cmd, state.vel, params, env_params)
+    if env_params is not None and generator is not None:  # wheel-speed noise: the robot really moves so
+        wheels = unicycle_to_wheels(vel, params.track_width)
+        wheels = wheels + env_params.wheel_noise[:, None] * torch.randn(wheels.shape, generator=generator, dtype=wheels.dtype, device=wheels.device)
+        vel = wheels_to_unicycle(wheels, params.track_width)
     pose = integrate(state.pose, vel, params)
     odom = step_odometry(state.odom, vel, params, generator)
-    clearance = disc_clearance(pose, world, params.robot_radius)
+    imu, imu_bias = state.imu, state.imu_bias
+    if params.imu is not None:
+        imu, imu_bias = step_imu(imu, imu_bias, vel, state.vel, state.time, params.imu, params.dt, generator)
+    radius = params.robot_radius if env_params is None else env_params.robot_radius
+    rows, plan = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius)
+    movers = Movers(rows, state.mover_mask, plan)
+    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, queue, world, params, generator, unroll, env_params)
+
+
+def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, params, generator=None, unroll=None,
+           env: EnvParams | None = None) -> SimState:
+    """The state at ``pose`` with its collision, lidar and camera readings (movers included)."""
+    mw = mover_world(movers.rows, movers.mask) if movers.rows.shape[1] else None
+    radius = params.robot_radius if env is None else env.robot_radius
+    clearance = disc_clearance(pose, world, radius)
+    if mw is not None:
+        clearance = torch.minimum(clearance, disc_clearance(pose, mw, radius))
+    if env is None:
+        ranges = lidar_scan(pose, world, params.lidar, generator, unroll=unroll, movers=mw)
+    else:  # a misaligned sensor, per-env noise and dropout, a shorter range
+        turned = torch.cat((pose[:, :2], pose[:, 2:] + env.angle_offset[:, None]), -1)
+        ranges = lidar_scan(turned, world, params.lidar, generator, unroll=unroll, movers=mw)
+        far = env.max_range[:, None]
+        if generator is not None:
+            ranges = ranges + env.range_noise[:, None] * torch.randn(ranges.shape, generator=generator, dtype=ranges.dtype, device=ranges.device)
+            drop = torch.rand(ranges.shape, generator=generator, dtype=ranges.dtype, device=ranges.device) < env.dropout[:, None]
+            ranges = torch.where(drop, far, ranges)
+        ranges = torch.minimum(ranges.clamp(min=params.lidar.min_range), far)
+    depth = camera_depth(pose, world, params.camera, mw) if params.camera is not None else pose.new_zeros(pose.shape[0], 0)
     return SimState(
-        pose=pose,
-        vel=vel,
-        odom=odom,
-        ranges=lidar_scan(pose, world, params.lidar, generator, unroll=unroll),
-        clearance=clearance,
-        collided=clearance <= 0,
-        time=state.time + params.dt,
-        batch_size=state.batch_size,
-        device=state.device,
+        pose=pose, vel=vel, odom=odom, ranges=ranges, clearance=clearance, collided=clearance <= 0, time=time,
+        imu=imu, imu_bias=imu_bias, cam_depth=depth, movers=movers.rows, mover_mask=movers.mask, mover_plan=movers.plan,
+        cmd_queue=queue, batch_size=[pose.shape[0]], device=pose.device,
     )
 
 
@@ -92,9 +133,18 @@ def init_state(
     world: World,
     params: SimParams,
     vel: Tensor | None = None,
+    movers: Movers | tuple[Tensor, Tensor] | None = None,
+    env_params: EnvParams | None = None,
+    delay_steps: int = 0,
 ) -> SimState:
     """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
-    scan and clearance already computed. Odometry starts at the true pose."""
+    scan, clearance and camera depth already computed. Odometry starts at the true pose; the
+    IMU reads zero with zero bias. ``movers`` is a :class:`~torchnav.sim.movers.Movers`
+    (``make_movers``), or a pair ``(rows (B, M, 9), mask (B, M))`` of ballistic movers;
+    ``None`` means no moving obstacles. ``env_params`` (``randomize.py``) gives per-env
+    radius and lidar imperfections for the first scan and clearance; ``delay_steps`` is the
+    length of the command queue of the actuator delay (the longest delay), filled with
+    zeros (the robot is told to stand)."""
     if pose.dim() != 2 or pose.shape[-1] != 3:
         raise ValueError(f"pose must have shape (B, 3), got {tuple(pose.shape)}")
     b = pose.shape[0]
@@ -103,15 +153,22 @@ def init_state(
         vel = pose.new_zeros(b, 2)
     elif vel.shape != (b, 2) or vel.dtype != pose.dtype or vel.device != pose.device:
         raise ValueError(f"vel must be a ({b}, 2) tensor of the pose's dtype and device, got {vel.dtype} {tuple(vel.shape)} on {vel.device}")
-    clearance = disc_clearance(pose, world, params.robot_radius)
-    return SimState(
-        pose=pose,
-        vel=vel,
-        odom=pose.clone(),  # not aliased with pose (aliasing makes torch.compile specialise)
-        ranges=lidar_scan(pose, world, params.lidar),
-        clearance=clearance,
-        collided=clearance <= 0,
-        time=pose.new_zeros(b),
-        batch_size=[b],
-        device=pose.device,
+    if movers is None:
+        movers = no_movers(b, pose)
+    if len(movers) == 2:
+        movers = Movers(*movers, movers[0].new_zeros(b, movers[0].shape[1], 0))
+    rows, mask, plan = movers
+    if plan.dim() != 3 or plan.shape[:2] != rows.shape[:2] or (plan.shape[2] and (plan.shape[2] < 6 or plan.shape[2] % 2)):
+        raise ValueError(f"movers.plan must be ({b}, M, 4 + 2P) with P >= 1, or ({b}, M, 0), got {tuple(plan.shape)}")
+    if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] != 9 or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
+        raise ValueError(f"movers must be a ({b}, M, 9) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}")
+    if rows.dtype != pose.dtype or rows.device != pose.device:
+        raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device}")
+    if plan.numel() == 0:  # canonical strides for an empty plan (an expanded one would make torch.compile recompile)
+        plan = rows.new_zeros(plan.shape)
+    n_imu = 0 if params.imu is None else 3
+    return _sense(
+        pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
+        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype)),
+        pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
     )

@@ -11,7 +11,8 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from ..config import ConfigError, from_dict
-from ..sim import LidarParams, SimParams
+from ..sim import RANDOMIZED, CameraParams, ImuParams, LidarParams, SimParams
+from ..sim.randomize import check_ranges
 
 CURRICULUM_MODES = ("growth", "success", "off")
 ACTION_MODES = ("continuous", "discrete")
@@ -46,6 +47,56 @@ class LidarConfig:
 
 
 @dataclass(frozen=True)
+class ImuConfig:
+    """The robot's IMU (docs/sim.md#imu): body-frame acceleration and yaw rate."""
+
+    enabled: bool = False  # simulate the IMU (state.imu); needed by observation.imu
+    accel_noise: float = 0.0  # m/s^2, white-noise std per reading
+    gyro_noise: float = 0.0  # rad/s, white-noise std per reading
+    accel_bias_walk: float = 0.0  # m/s^2 per sqrt(s), bias random walk
+    gyro_bias_walk: float = 0.0  # rad/s per sqrt(s), bias random walk
+    rate: float = math.inf  # Hz, sample-and-hold rate (inf: every step)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """A forward ray-cast camera (docs/sim.md#camera): a depth row in the step, RGB on demand."""
+
+    enabled: bool = False  # compute the depth row every step (state.cam_depth); needed by observation.camera
+    n_cols: int = 64  # image width in pixels = depth readings
+    n_rows: int = 48  # image height in pixels (RGB only)
+    fov_deg: float = 90.0  # horizontal field of view, degrees (0, 180)
+    max_range: float = 10.0  # m, depth of misses and the depth row's cap
+    height: float = 0.3  # m above the floor
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # sensor pose on the robot: m, m, rad
+
+
+Range = tuple[float, float] | None
+
+
+@dataclass(frozen=True)
+class RandomizeConfig:
+    """Domain randomisation (docs/tasks.md#randomize): each key a ``[min, max]`` range drawn
+    uniformly per env at every reset, or null for the fixed value of ``robot``/``lidar``."""
+
+    v_max: Range = None  # m/s, speed limit (the reverse limit scales with it)
+    omega_max: Range = None  # rad/s, turn-rate limit
+    lin_acc_max: Range = None  # m/s^2, linear acceleration limit
+    ang_acc_max: Range = None  # rad/s^2, angular acceleration limit
+    delay: Range = None  # steps (whole numbers), actuator delay
+    wheel_noise: Range = None  # m/s, std of Gaussian noise on each wheel's speed
+    range_noise: Range = None  # m, std of the lidar's Gaussian range noise
+    dropout: Range = None  # probability that a lidar ray reads max_range
+    angle_offset: Range = None  # rad, lidar yaw misalignment
+    max_range: Range = None  # m, lidar range (at most lidar.max_range)
+    robot_radius: Range = None  # m, robot disc for collision
+
+    def ranges(self) -> dict[str, tuple[float, float]]:
+        """The randomised parameters and their ranges."""
+        return {k: v for k, v in ((f, getattr(self, f)) for f in RANDOMIZED) if v is not None}
+
+
+@dataclass(frozen=True)
 class CurriculumConfig:
     """The bootstrapped goal radius: goals at a distance in [min_radius, radius] from the start."""
 
@@ -72,6 +123,8 @@ class ObservationConfig:
     normalize: bool = True  # scale lidar and distances by max_range, angles by pi, speeds by limits
     history: int = 1  # stack the last k observations
     goal_from_odom: bool = False  # goal vector from the drifting odometry instead of the true pose
+    imu: bool = False  # append the IMU reading [a_x, a_y, yaw rate] (needs imu.enabled)
+    camera: bool = False  # append the camera's depth row, n_cols values (needs camera.enabled)
 
 
 @dataclass(frozen=True)
@@ -115,6 +168,9 @@ class NavConfig:
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
     robot: RobotConfig = field(default_factory=RobotConfig)
     lidar: LidarConfig = field(default_factory=LidarConfig)
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
@@ -135,6 +191,8 @@ class NavConfig:
             (self.action.mode in ACTION_MODES, f"action.mode must be one of {ACTION_MODES}, got {self.action.mode!r}"),
             (len(self.action.discrete_set) >= 2, "action.discrete_set needs at least 2 actions"),
             (self.observation.history >= 1, "observation.history must be >= 1"),
+            (not self.observation.imu or self.imu.enabled, "observation.imu needs imu.enabled: true"),
+            (not self.observation.camera or self.camera.enabled, "observation.camera needs camera.enabled: true"),
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),
             (self.reset.pool >= 0, "reset.pool must be >= 0"),
             (isinstance(self.reset.reuse, int) and self.reset.reuse >= 1, f"reset.reuse must be an int >= 1, got {self.reset.reuse!r}"),
@@ -151,15 +209,27 @@ class NavConfig:
                 raise ConfigError(msg)
         for name in w.families:
             _check_family(name)
-        self.sim_params()  # validates robot and lidar fields
+        params = self.sim_params()  # validates robot and lidar fields
+        try:
+            check_ranges(self.randomize.ranges(), params)
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | None = None, where: str = "env") -> "NavConfig":
         return from_dict(cls, data, where)
 
     def sim_params(self) -> SimParams:
-        r, li = self.robot, self.lidar
+        r, li, im, ca = self.robot, self.lidar, self.imu, self.camera
         try:
+            imu = ImuParams(
+                accel_noise=im.accel_noise, gyro_noise=im.gyro_noise, accel_bias_walk=im.accel_bias_walk,
+                gyro_bias_walk=im.gyro_bias_walk, rate=im.rate,
+            ) if im.enabled else None
+            camera = CameraParams(
+                n_cols=ca.n_cols, n_rows=ca.n_rows, fov=math.radians(ca.fov_deg), max_range=ca.max_range,
+                height=ca.height, offset=ca.offset,
+            ) if ca.enabled else None
             lidar = LidarParams(
                 n_rays=li.n_rays, fov=math.radians(li.fov_deg), min_range=li.min_range, max_range=li.max_range,
                 offset=li.offset, n_sectors=li.n_sectors, noise_std=li.noise_std,
@@ -170,6 +240,7 @@ class NavConfig:
                 v_min=0.0 if self.action.forward_only else -r.v_max, v_max=r.v_max, omega_max=r.omega_max,
                 lin_acc_max=r.lin_acc_max, ang_acc_max=r.ang_acc_max, integrator=r.integrator,
                 odom_v_noise=r.odom_v_noise, odom_omega_noise=r.odom_omega_noise, lidar=lidar,
+                imu=imu, camera=camera,
             )
         except ValueError as e:
             raise ConfigError(f"robot/lidar: {e}") from e

@@ -15,14 +15,15 @@ from torch import Tensor
 
 from ..maps import load_map
 from ..maps.free_space import check_room
-from ..sim import SimState, World, init_state, pad_world, safe_hypot, sectorize, wrap_angle
+from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
+from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
 from ..sim import step as sim_step
 from .base import BatchedTask
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
 from .rewards import resolve_weights, reward_terms
-from .sampling import place_random_objects, sample_goals, sample_starts
+from .sampling import place_movers, place_random_objects, sample_goals, sample_starts
 
 
 @tensorclass
@@ -38,6 +39,8 @@ class NavState:
         history: ``(B, H, D)`` the last H observations, newest last.
         family: ``(B,)`` int64 index of the episode's world family in ``cfg.worlds.families``
             (0 without procedural worlds). difficulty: ``(B,)`` its difficulty in [0, 1].
+        env_params: the episode's per-env robot and sensor parameters (``cfg.randomize``;
+            the fixed values of ``cfg`` when nothing is randomised).
     """
 
     sim: SimState
@@ -53,6 +56,7 @@ class NavState:
     history: Tensor
     family: Tensor
     difficulty: Tensor
+    env_params: EnvParams
 
 
 class NavTask(BatchedTask):
@@ -65,10 +69,18 @@ class NavTask(BatchedTask):
         if self.spec is not None:  # a map with no room for a start or a goal is refused before any episode
             check_room(self.spec, cfg.robot.radius + cfg.reset.start_clearance, cfg.reset.goal_clearance)
         self.params = cfg.sim_params()
+        self.randomized = cfg.randomize.ranges()  # domain randomisation: parameter -> (min, max)
+        self.delay_steps = max_delay(self.randomized)
+        # The largest robot the episode may draw decides how much room a start needs.
+        self.max_radius = max(cfg.robot.radius, self.randomized.get("robot_radius", (0.0, 0.0))[1])
+        # Moving discs of the map (placed at every reset); procedural worlds have none.
+        self.n_movers = self.spec.moving_circles.count if self.spec is not None and self.spec.moving_circles else 0
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)
         self.n_sectors = cfg.lidar.n_sectors
-        self.obs_dim = self.n_sectors + 4
+        self.n_imu = 3 if cfg.observation.imu else 0
+        self.n_depth = cfg.camera.n_cols if cfg.observation.camera else 0
+        self.obs_dim = self.n_sectors + 4 + self.n_imu + self.n_depth
         self.obs_size = self.obs_dim * cfg.observation.history
         if self.families:
             self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
@@ -110,6 +122,9 @@ class NavTask(BatchedTask):
         if not self.cfg.observation.normalize:
             return torch.ones(self.obs_dim, dtype=self.dtype, device=self.device)
         s = [1.0 / li.max_range] * self.n_sectors + [1.0 / li.max_range, 1.0 / math.pi, 1.0 / r.v_max, 1.0 / max(r.omega_max, 1e-9)]
+        # IMU: accelerations by the largest centripetal one (v_max * omega_max), yaw rate by omega_max.
+        s += [1.0 / max(r.v_max * r.omega_max, 1e-9)] * 2 + [1.0 / max(r.omega_max, 1e-9)] if self.n_imu else []
+        s += [1.0 / self.cfg.camera.max_range] * self.n_depth
         return torch.tensor(s, dtype=self.dtype, device=self.device)
 
     def goal_vector(self, pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
@@ -121,11 +136,17 @@ class NavTask(BatchedTask):
         return dist, bearing
 
     def observe(self, sim: SimState, goal: Tensor) -> Tensor:
-        """One observation ``(B, D)``: lidar sectors, goal distance and bearing, and (v, omega)."""
+        """One observation ``(B, D)``: lidar sectors, goal distance and bearing, (v, omega), then the
+        IMU reading (``observation.imu``) and the camera's depth row (``observation.camera``)."""
         sectors = sectorize(sim.ranges, self.n_sectors)
         pose = sim.odom if self.cfg.observation.goal_from_odom else sim.pose
         dist, bearing = self.goal_vector(pose, goal)
-        obs = torch.cat((sectors, dist[:, None], bearing[:, None], sim.vel), dim=-1)
+        parts = [sectors, dist[:, None], bearing[:, None], sim.vel]
+        if self.n_imu:
+            parts.append(sim.imu)
+        if self.n_depth:
+            parts.append(sim.cam_depth)
+        obs = torch.cat(parts, dim=-1)
         return obs * self._obs_scale
 
     # -- reset ----------------------------------------------------------------------
@@ -138,15 +159,24 @@ class NavTask(BatchedTask):
             world, start, goal, family, difficulty = self._generated(n, cur, gen)
         else:
             world = self.base_world[idx]
-            start, _ = sample_starts(world, self.spec, c.robot.radius + rc.start_clearance, rc.candidates, gen)
+            start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, gen)
             goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
             world = place_random_objects(
                 world, self.spec, start[:, :2], goal, rc.candidates, gen,
-                start_need=c.robot.radius + rc.start_clearance, goal_need=rc.goal_clearance,
+                start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance,
             )
             family = torch.zeros(n, dtype=torch.int64, device=self.device)
             difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
-        sim = init_state(start, world, self.params)
+        movers = None
+        if self.n_movers:
+            movers = place_movers(world, self.spec, start[:, :2], goal, rc.candidates, gen,
+                                  start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
+        if self.randomized:
+            env_params = sample_env_params(self.randomized, self.params, n, gen, start)
+        else:
+            env_params = nominal_env_params(self.params, n, start)
+        sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
+                         delay_steps=self.delay_steps)
         obs = self.observe(sim, goal)
         dist, _ = self.goal_vector(sim.pose, goal)
         zeros = torch.zeros(n, dtype=self.dtype, device=self.device)
@@ -156,7 +186,7 @@ class NavTask(BatchedTask):
             goal_dist=dist, ep_return=zeros, ep_path=zeros.clone(), straight=dist.detach().clone(),
             ep_terms=torch.zeros(n, len(self.term_names), dtype=self.dtype, device=self.device),
             history=obs[:, None, :].expand(n, self.cfg.observation.history, self.obs_dim).clone(),
-            family=family, difficulty=difficulty, batch_size=[n], device=self.device,
+            family=family, difficulty=difficulty, env_params=env_params, batch_size=[n], device=self.device,
         )
 
     def _generated(self, n: int, cur: CurriculumState, gen: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor]:
@@ -223,7 +253,8 @@ class NavTask(BatchedTask):
         ``terms`` (dict of ``(B,)`` weighted reward terms), ``terminated``, ``truncated``,
         ``success``, ``collision`` ``(B,)`` bool.
         """
-        sim = self._sim_step(state.sim, self.command(action), state.world, self.params, generator=gen)
+        sim = self._sim_step(state.sim, self.command(action), state.world, self.params, generator=gen,
+                             env_params=state.env_params if self.randomized else None)
         dist, bearing = self.goal_vector(sim.pose, state.goal)
         collision = sim.collided
         success = (dist < self.cfg.goal_tolerance) & ~collision
@@ -243,7 +274,8 @@ class NavTask(BatchedTask):
             ep_return=state.ep_return + reward,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
             straight=state.straight, ep_terms=state.ep_terms + stacked, history=history,
-            family=state.family, difficulty=state.difficulty, batch_size=state.batch_size, device=state.device,
+            family=state.family, difficulty=state.difficulty, env_params=state.env_params,
+            batch_size=state.batch_size, device=state.device,
         )
         out = {
             "observation": history.reshape(history.shape[0], -1), "reward": reward, "terms": terms,

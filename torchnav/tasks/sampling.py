@@ -13,12 +13,15 @@ are computed in chunks of candidates (see :func:`_clearance`), so no
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from ..maps import MapSpec
-from ..sim import World, points_clearance
+from ..maps.spec import RandomCircles
+from ..sim import World, pad_world, points_clearance
+from ..sim.movers import PATROL, PEDESTRIAN, Movers
 
 _BIG = 1e9
 # Most elements of one (n, candidates, obstacles) distance temporary: 4 MB in float32, and the
@@ -189,3 +192,52 @@ def place_random_objects(
         circles = torch.cat((circles[:, :nc0], new, circles[:, nc0 + nc :]), 1)
         circle_mask = torch.cat((circle_mask[:, :nc0], torch.stack(found_all[nb:], 1), circle_mask[:, nc0 + nc :]), 1)
     return World(segments=world.segments, segment_mask=world.segment_mask, circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask, batch_size=[n], device=world.device)
+
+
+@dataclass(frozen=True)
+class _MoverPlacement:
+    """What :func:`place_random_objects` reads of a map, set up to place movers as its random circles:
+    every existing slot counts as fixed, and the movers' region is the bounds."""
+
+    n_fixed_boxes: int
+    n_fixed_circles: int
+    bounds: tuple[float, float, float, float]
+    random_circles: RandomCircles
+    random_boxes: None = None
+
+
+def place_movers(
+    world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator,
+    *, start_need: float = 0.0, goal_need: float = 0.0,
+) -> Movers:
+    """The map's ``moving_circles`` for a batch ``n`` of episodes (``movers (n, M, 9)``, ``mask (n, M)``, ``plan``).
+
+    Positions are placed like random circles (:func:`place_random_objects`: ``clearance`` from
+    the start and the goal, ``margin`` from every obstacle of ``world``, including this
+    episode's random objects, and from each other; inside the region); a mover with no valid
+    candidate is left out (masked off). Headings are uniform, speeds uniform in ``speed``;
+    patrols and pedestrians get ``waypoints`` points uniform in the region (shrunk by
+    their radius) and head for the first.
+    """
+    mc = spec.moving_circles
+    n, like = start_xy.shape[0], start_xy
+    region = mc.region or spec.bounds
+    shim = _MoverPlacement(world.boxes.shape[1], world.circles.shape[1], region,
+                           RandomCircles(count=mc.count, radius=mc.radius, clearance=mc.clearance, margin=mc.margin))
+    placed = place_random_objects(pad_world(world, circles=world.circles.shape[1] + mc.count), shim, start_xy, goal_xy, k, gen,
+                                  start_need=start_need, goal_need=goal_need)
+    disc, mask = placed.circles[:, -mc.count:], placed.circle_mask[:, -mc.count:]
+    heading = _uniform((n, mc.count), -math.pi, math.pi, gen, like)
+    speed = _uniform((n, mc.count), mc.speed[0], mc.speed[1], gen, like)
+    box = (-math.inf, -math.inf, math.inf, math.inf) if mc.motion == "constant" else region
+    rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3],
+                      torch.tensor(box, dtype=like.dtype, device=like.device).expand(n, mc.count, 4)), -1)
+    plan = like.new_zeros(n, mc.count, 0)
+    if mc.motion in ("patrol", "pedestrian"):
+        p, r = mc.waypoints, disc[..., 2:3]
+        wx = region[0] + r + (region[2] - region[0] - 2 * r) * torch.rand((n, mc.count, p), generator=gen, dtype=like.dtype, device=like.device)
+        wy = region[1] + r + (region[3] - region[1] - 2 * r) * torch.rand((n, mc.count, p), generator=gen, dtype=like.dtype, device=like.device)
+        kind = PEDESTRIAN if mc.motion == "pedestrian" else PATROL
+        head = torch.stack((torch.full_like(speed, kind), speed, torch.zeros_like(speed), torch.full_like(speed, p)), -1)
+        plan = torch.cat((head, torch.stack((wx, wy), -1).flatten(-2)), -1)
+    return Movers(rows, mask, plan)

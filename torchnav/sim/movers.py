@@ -1,0 +1,208 @@
+"""Moving obstacles: discs with velocities, stepped inside the batched simulator step.
+
+Each env holds ``M`` mover slots as one ``(B, M, 9)`` tensor (``SimState.movers``)
+with a ``(B, M)`` bool mask; the columns are ``MOVER_FIELDS``:
+
+    x, y (m), vx, vy (m/s), radius (m), xmin, ymin, xmax, ymax (m: the region)
+
+Three kinds of motion:
+
+* **ballistic** (the default): constant velocity; inside a finite region the mover
+  bounces off the region's edges (its disc stays inside: the position is mirrored at
+  ``edge +- radius`` and that velocity component flips). An unbounded region
+  (``+-inf``) gives plain constant-velocity motion.
+* **patrol**: drives at its cruising speed straight to its next waypoint, and on
+  reaching it (within one step's travel) heads for the following one, cyclically.
+* **pedestrian**: walks towards its next waypoint like a patrol, but steers: its
+  velocity relaxes towards the desired one over ``PED_TAU`` s and is pushed away from
+  the other movers and the robot by exponential social forces
+  (``PED_PUSH * exp((r_i + r_j - d_ij) / PED_RANGE)``, Helbing-Molnar), its speed capped
+  at ``PED_MAX_SPEED`` times the cruising speed. It reaches a waypoint within ``PED_ARRIVE`` m.
+
+Patrols and pedestrians keep their plan in ``SimState.mover_plan`` ``(B, M, 4 + 2P)``:
+``kind`` (``BALLISTIC``, ``PATROL``, ``PEDESTRIAN``), cruising ``speed`` (m/s), the
+index of the next waypoint, the number of waypoints ``n`` (1 to ``P``), then ``P``
+waypoints ``x, y`` (m). Without any patrol or pedestrian the plan is ``(B, M, 0)`` and
+costs nothing. Every mover also applies its region (unbounded for most patrols).
+Masked slots move too but are seen by nothing. The lidar, the camera and collision
+treat a mover like a static circle at its position after the step; movers pass
+through walls and static obstacles.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple, Sequence
+
+import torch
+from torch import Tensor
+
+from .math import safe_hypot
+from .state import World, _planar_copy
+
+MOVER_FIELDS = ("x", "y", "vx", "vy", "radius", "xmin", "ymin", "xmax", "ymax")
+N_MOVER_FIELDS = len(MOVER_FIELDS)
+BALLISTIC, PATROL, PEDESTRIAN = 0, 1, 2
+PLAN_FIELDS = ("kind", "speed", "target", "n")  # then P waypoints (x, y)
+PED_TAU = 0.5  # s, relaxation time of a pedestrian's velocity towards the desired one
+PED_PUSH = 2.0  # m/s^2, social force at contact
+PED_RANGE = 0.3  # m, decay length of the social force
+PED_MAX_SPEED = 1.3  # times the cruising speed
+PED_ARRIVE = 0.3  # m, a pedestrian has reached a waypoint this close to it
+
+
+class Movers(NamedTuple):
+    """Moving obstacles of a batch: ``rows`` ``(B, M, 9)``, ``mask`` ``(B, M)`` bool and
+    ``plan`` ``(B, M, 4 + 2P)`` or ``(B, M, 0)`` (module docstring)."""
+
+    rows: Tensor
+    mask: Tensor
+    plan: Tensor
+
+
+def make_movers(
+    batch_size: int,
+    discs: Sequence[Sequence[float]] | Tensor | None = None,
+    region: Sequence[float] | None = None,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
+    *,
+    waypoints: Sequence[Sequence[Sequence[float]]] | None = None,
+    pedestrians: bool = False,
+) -> Movers:
+    """The same movers in every env: ``discs`` ``(M, 5)`` rows ``[x, y, vx, vy, radius]``,
+    bouncing inside ``region`` ``(xmin, ymin, xmax, ymax)`` (``None``: unbounded, constant velocity).
+
+    ``waypoints``, one list of ``[x, y]`` per disc, makes the discs with a non-empty list
+    patrols (or, with ``pedestrians=True``, pedestrians) whose cruising speed is the
+    norm of their ``(vx, vy)``; discs with an empty list stay ballistic."""
+    d = torch.as_tensor(discs if discs is not None and len(discs) else [], dtype=dtype, device=device)
+    d = d.reshape(0, 5) if d.numel() == 0 else d
+    if d.dim() != 2 or d.shape[1] != 5:
+        raise ValueError(f"movers must have shape (M, 5) [x, y, vx, vy, radius], got {tuple(d.shape)}")
+    if (d[:, 4] <= 0).any() or not torch.isfinite(d).all():
+        raise ValueError("movers: radius must be > 0 and every value finite")
+    reg = (-math.inf, -math.inf, math.inf, math.inf) if region is None else tuple(float(v) for v in region)
+    if len(reg) != 4 or not (reg[0] < reg[2] and reg[1] < reg[3]):
+        raise ValueError(f"movers: region must be (xmin, ymin, xmax, ymax) with xmin < xmax and ymin < ymax, got {region!r}")
+    if d.shape[0] and region is not None:
+        r = d[:, 4]
+        inside = (d[:, 0] - r >= reg[0]) & (d[:, 0] + r <= reg[2]) & (d[:, 1] - r >= reg[1]) & (d[:, 1] + r <= reg[3])
+        if not inside.all():
+            raise ValueError(f"movers: every disc must start inside its region {reg}")
+    m = d.shape[0]
+    rows = torch.cat((d, torch.tensor(reg, dtype=dtype, device=device).expand(m, 4)), 1)
+    plan = torch.zeros(m, 0, dtype=dtype, device=device)
+    if waypoints is not None:
+        if len(waypoints) != m:
+            raise ValueError(f"movers: waypoints needs one list per disc ({m}), got {len(waypoints)}")
+        p = max(1, max((len(w) for w in waypoints), default=1))
+        plan = torch.zeros(m, 4 + 2 * p, dtype=dtype, device=device)
+        for i, w in enumerate(waypoints):
+            if not len(w):
+                continue
+            pts = torch.as_tensor(w, dtype=dtype, device=device)
+            if pts.dim() != 2 or pts.shape[1] != 2 or not torch.isfinite(pts).all():
+                raise ValueError(f"movers: waypoints[{i}] must be a list of finite [x, y], got {w!r}")
+            plan[i, 0] = PEDESTRIAN if pedestrians else PATROL
+            plan[i, 1] = d[i, 2:4].norm()
+            plan[i, 3] = len(w)
+            plan[i, 4 : 4 + 2 * len(w)] = pts.reshape(-1)
+    return Movers(
+        rows.unsqueeze(0).expand(batch_size, -1, -1).clone(),
+        torch.ones(batch_size, m, dtype=torch.bool, device=device),
+        plan.unsqueeze(0).expand(batch_size, -1, -1).clone(),
+    )
+
+
+def no_movers(batch_size: int, like: Tensor) -> Movers:
+    """Zero mover slots: ``(B, 0, 9)``, ``(B, 0)`` and ``(B, 0, 0)``."""
+    return Movers(like.new_zeros(batch_size, 0, N_MOVER_FIELDS), torch.zeros(batch_size, 0, dtype=torch.bool, device=like.device),
+                  like.new_zeros(batch_size, 0, 0))
+
+
+def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[Tensor, Tensor]:
+    """Every mover ``(B, M, 9)`` and its plan advanced by ``dt`` s (module docstring). Pure.
+
+    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` (m, or ``(B,)``) are what pedestrians avoid besides each other."""
+    if movers.shape[1] == 0:
+        return movers, plan
+    x, y, vx, vy, r, xmin, ymin, xmax, ymax = movers.unbind(-1)
+    if plan.shape[-1]:
+        (vx, vy), plan = _steer(movers, plan, mask, dt, robot_xy, robot_radius)
+    x, vx = _bounce(x + vx * dt, vx, xmin + r, xmax - r)
+    y, vy = _bounce(y + vy * dt, vy, ymin + r, ymax - r)
+    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax), -1), plan
+
+
+def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
+    """New velocities of patrols and pedestrians (ballistic movers keep theirs) and the plan with
+    reached waypoints advanced.
+
+    Written on ``(M, B)`` components (a mover-major copy, so the batch is the contiguous
+    inner dimension) with short Python loops over the waypoints and the other movers:
+    compiled, this fuses into vectorised passes, about 2.5x faster than the same maths on
+    ``(B, M, M + 1, 2)`` pair tensors, whose inner dimension of a few movers does not vectorise."""
+    # Materialised by an opaque op: torch.compile would otherwise fuse the transposed reads
+    # into its loops and iterate over the batch's few movers innermost, unvectorised.
+    cols = _planar_copy(movers[..., :5].transpose(0, 1))  # (5, M, B)
+    pc = _planar_copy(plan.transpose(0, 1))  # (4 + 2P, M, B)
+    kind, speed, target, n = pc[0], pc[1], pc[2], pc[3]
+    x, y, vx, vy, r = cols.unbind(0)
+    mask = mask.t()
+    gx, gy = torch.zeros_like(x), torch.zeros_like(y)
+    for k in range((pc.shape[0] - 4) // 2):  # the next waypoint
+        here = target == k
+        gx, gy = torch.where(here, pc[4 + 2 * k], gx), torch.where(here, pc[5 + 2 * k], gy)
+    tx, ty = gx - x, gy - y
+    dist = safe_hypot(tx, ty)
+    ped = kind == PEDESTRIAN
+    reach = torch.where(ped, torch.full_like(speed, PED_ARRIVE), speed * dt)
+    arrived = (kind != BALLISTIC) & (dist <= reach * (1 + 1e-4) + 1e-6)  # with float slack: no pause on a waypoint
+    scale = speed / dist.clamp(min=1e-9)
+    dvx, dvy = scale * tx, scale * ty  # desired velocity
+    # A patrol that arrives this step lands exactly on its waypoint.
+    land = arrived & ~ped
+    pvx, pvy = torch.where(land, tx / dt, dvx), torch.where(land, ty / dt, dvy)
+    patrol = kind == PATROL
+    nvx, nvy = torch.where(patrol, pvx, vx), torch.where(patrol, pvy, vy)
+    # Pedestrians: relax towards the desired velocity, pushed by the other movers and the robot.
+    rr = robot_radius[None, :].to(x.dtype) if isinstance(robot_radius, Tensor) else robot_radius
+    others = [(x[j : j + 1], y[j : j + 1], r[j : j + 1], mask[j : j + 1], j) for j in range(x.shape[0])]
+    others.append((robot_xy[None, :, 0], robot_xy[None, :, 1], rr, None, -1))
+    fx, fy = torch.zeros_like(x), torch.zeros_like(y)
+    slot = torch.arange(x.shape[0], device=x.device)[:, None]
+    for ox, oy, orad, present, j in others:
+        ax, ay = x - ox, y - oy
+        d = safe_hypot(ax, ay)
+        push = PED_PUSH * torch.exp((r + orad - d) / PED_RANGE) / d.clamp(min=1e-9)
+        if present is not None:  # not oneself, and only movers that exist
+            push = torch.where((slot != j) & present, push, 0.0)
+        fx, fy = fx + push * ax, fy + push * ay
+    qx = vx + ((dvx - vx) / PED_TAU + fx) * dt
+    qy = vy + ((dvy - vy) / PED_TAU + fy) * dt
+    cap = torch.minimum(torch.ones_like(speed), PED_MAX_SPEED * speed / safe_hypot(qx, qy).clamp(min=1e-9))
+    nvx, nvy = torch.where(ped, qx * cap, nvx), torch.where(ped, qy * cap, nvy)
+    target = torch.where(arrived, torch.remainder(target + 1, n.clamp(min=1)), target)
+    plan = torch.cat((plan[..., :2], target.t()[..., None], plan[..., 3:]), -1)
+    return (nvx.t(), nvy.t()), plan
+
+
+def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:
+    """Mirror positions that left ``[lo, hi]`` back inside and flip their velocity (one reflection per
+    step: a mover crosses its region in more than one step)."""
+    below, above = p < lo, p > hi
+    p = torch.where(below, 2 * lo - p, torch.where(above, 2 * hi - p, p))
+    v = torch.where(below | above, -v, v)
+    return p, v
+
+
+def mover_world(movers: Tensor, mask: Tensor) -> World:
+    """The movers as a :class:`World` of circles ``[x, y, radius]`` (no walls, no boxes)."""
+    b = movers.shape[0]
+    return World(
+        segments=movers.new_zeros(b, 0, 4), segment_mask=mask[:, :0],
+        circles=torch.stack((movers[..., 0], movers[..., 1], movers[..., 4]), -1), circle_mask=mask,
+        boxes=movers.new_zeros(b, 0, 5), box_mask=mask[:, :0],
+        batch_size=[b], device=movers.device,
+    )
