@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RECIPES = ("td3_lidar", "ppo_lidar", "sac_lidar", "ppo_line", "dqn_line")
+RECIPES = ("td3_lidar", "ppo_lidar", "sac_lidar", "ppo_line", "dqn_line", "apg_lidar", "apg_line")
 
 
 def score_of(ev: dict) -> tuple[str, dict]:
