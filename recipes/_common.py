@@ -128,7 +128,7 @@ for _keys, _rule in {
     ("env.num_envs", "env.max_steps", "train.total_frames", "train.frames_per_batch", "train.updates_per_batch", "train.batch_size",
      "train.buffer_size", "train.policy_delay", "train.epochs", "train.minibatch_size", "eval.episodes", "eval.final_episodes",
      "eval.laps", "checkpoint.interval_frames", "train.horizon", "train.critic_epochs"): (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
-    ("train.init_random_frames", "train.expl_anneal_frames", "train.eps_anneal_frames", "train.obs_stats_steps",
+    ("train.init_random_frames", "train.expl_anneal_frames", "smooth.ramp_frames", "train.eps_anneal_frames", "train.obs_stats_steps",
      "eval.interval_frames", "eval.record_episodes"): (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
     ("train.lr*", "train.max_grad_norm", "train.skip_grad_norm", "train.clip_epsilon", "train.alpha_init", "env.goal_tolerance",
      "smooth.contact_margin"):

@@ -145,7 +145,13 @@ def main(argv: list[str], name: str = "apg_lidar", adapter: type = NavAdapter) -
     t.restore(modules)
     t.export_actor = lambda: loc_net.squashed()
     t.counters.setdefault("skipped_updates", 0)
-    smooth = make_smooth(t.task.name, t.cfg.smooth, env)
+    term = make_smooth(t.task.name, t.cfg.smooth, env)
+    ramp = int(t.cfg.smooth.ramp_frames)
+
+    def smooth(state) -> Tensor:
+        """The smoothed terms, their weight ramped from 0 over ``smooth.ramp_frames`` (continuation:
+        learn to move before learning to keep away; a full weight at once can teach standing still)."""
+        return term(state) * (min(1.0, t.counters["frames"] / ramp) if ramp else 1.0)
     env.reset()  # episodes in flight are not checkpointed: a resumed run starts fresh ones
 
     def sigma() -> float:
