@@ -283,6 +283,9 @@ def test_training_bench_runs_seeds_and_tabulates(tmp_path):
     assert json.loads((tmp_path / "t.json").read_text())["rows"][0]["frames"] == 256
     assert rows[0]["collect_fps"] > 0 and rows[0]["update_fps"] > 0 and rows[0]["train_fps"] > 0
     assert "| 3 |" in training.table("ppo_line", rows)
+    assert "first_90" in rows[0]  # (frames, training s) of the first periodic evaluation >= 90%, or None
+    again = training.main(["ppo_line", "--table", str(tmp_path / "t.json")])  # re-tabulated from the JSON, no run
+    assert again[0]["score"] == rows[0]["score"] and again[0]["first_90"] == (list(rows[0]["first_90"]) if rows[0]["first_90"] else None)
 
 
 def test_training_bench_busy_processes_run_and_are_stopped():
