@@ -106,3 +106,22 @@ def test_long_run_with_collisions_stays_finite():
         assert torch.isfinite(batch["observation"]).all() and torch.isfinite(batch["reward"]).all()
     assert collisions > 50, collisions
     assert torch.isfinite(env.state.sim.pose).all() and not env.state.sim.pose.requires_grad
+
+
+def test_config_is_checked_before_the_run(tmp_path):
+    """APG's own keys are validated with the others, before any run directory exists."""
+    import pytest
+
+    from torchnav.config import ConfigError
+
+    run = tmp_path / "run"
+    with pytest.raises(ConfigError) as e:
+        apg_lidar.main(["train.horizon=0", "smooth.contact_margin=0", "smooth.ramp_frames=-1", "train.lr_decay=maybe",
+                        "smooth.contact=x", f"logger.run_dir={run}"])
+    for want in ("train.horizon=0: must be an integer >= 1", "smooth.contact_margin=0: must be a finite number > 0",
+                 "smooth.ramp_frames=-1: must be an integer >= 0", "train.lr_decay='maybe': must be true or false",
+                 "smooth.contact='x': must be a float"):
+        assert want in str(e.value), str(e.value)
+    with pytest.raises(ConfigError, match="smooth.contcat"):
+        apg_lidar.main(["smooth.contcat=-1", f"logger.run_dir={run}"])
+    assert not run.exists()
