@@ -25,7 +25,9 @@ al., "Accelerated Policy Learning with Parallel Differentiable Simulation", 2022
 The task's terminal events (goal reached, collision) are constants with no
 gradient; ``smooth.*`` adds a differentiable term in their place (``contact``: a
 penalty ramping up as the robot's clearance falls below ``smooth.contact_margin``)
-to the reward the actor and critic see. Exploration is Gaussian noise before the
+to the reward the actor and critic see, its weight ramped in over
+``smooth.ramp_frames`` (at full weight from the start, or with the `proximity` term
+on, the first updates learned to stand still). Exploration is Gaussian noise before the
 ``tanh`` (reparameterised, so it does not block the gradient). The shared loop in
 ``recipes/_train.py`` does progress output, periodic evaluation, checkpoints, the
 final evaluation and MCAP episodes; the saved ``actor.pt`` is ``tanh`` of the
