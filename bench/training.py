@@ -11,7 +11,8 @@ would), times the whole command with a wall clock, and reads each run's
 (success rate for navigation, lap-completion rate for line following) over
 ``eval.final_episodes`` episodes with its 95% interval, whole-command wall time,
 training wall time, when periodic evaluation first reached ``eval.target_success``
-(seconds from the command's start, and frames), and the frames/s of collection, of
+(seconds from the command's start, and frames), when it first reached 90% (training
+seconds and frames, from the run's logs), and the frames/s of collection, of
 the updates and of both together (periodic evaluation excluded). ``--busy N`` runs N
 CPU-bound processes next to every run (the load of a user's other work); ``--json``
 also writes the table as JSON. Otherwise use an idle machine: on 2 cores another
@@ -31,12 +32,26 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RECIPES = ("td3_lidar", "ppo_lidar", "sac_lidar", "ppo_line", "dqn_line")
+RECIPES = ("td3_lidar", "ppo_lidar", "sac_lidar", "ppo_line", "dqn_line", "apg_lidar", "apg_line")
 
 
 def score_of(ev: dict) -> tuple[str, dict]:
     key = "success" if "success" in ev else "lap_complete"
     return key, ev[key]
+
+
+def first_reached(run: Path, level: float) -> tuple[int, float] | None:
+    """(frames, training wall s) of the first periodic evaluation whose score (``eval/score`` in the
+    run's CSV logs) reached ``level``; None if none did or the run logged no evaluation."""
+    from torchnav.render import read_scalars
+
+    s = read_scalars(run)
+    if "eval/score" not in s or "eval/wall_s" not in s:
+        return None
+    for (frames, score), (_, wall) in zip(s["eval/score"], s["eval/wall_s"]):
+        if score >= level:
+            return int(frames), float(wall)
+    return None
 
 
 def run_seed(recipe: str, seed: int, out: Path, overrides: list[str]) -> dict:
@@ -57,7 +72,8 @@ def run_seed(recipe: str, seed: int, out: Path, overrides: list[str]) -> dict:
             "collect_fps": summary["frames"] / max(summary["collect_s"], 1e-9),
             "update_fps": summary["frames"] / max(summary["update_s"], 1e-9),
             "train_fps": summary["frames"] / max(summary["collect_s"] + summary["update_s"], 1e-9),
-            "frames": summary["frames"], "frames_to_target": summary["frames_to_target"], "run_dir": str(run)}
+            "frames": summary["frames"], "frames_to_target": summary["frames_to_target"], "run_dir": str(run),
+            "first_90": first_reached(run, 0.9)}
 
 
 def _mean_sd(xs: list[float], digits: int = 1) -> str:
@@ -70,17 +86,21 @@ def _mean_sd(xs: list[float], digits: int = 1) -> str:
 def table(recipe: str, rows: list[dict], busy: int = 0) -> str:
     key = rows[0]["score_key"]
     lines = [f"| seed | {key} ({rows[0]['episodes']} episodes) | 95% CI | whole command | training | "
-             "eval first >= target, from command start | frames/s: collection | updates | both |",
-             "|---:|---:|---|---:|---:|---:|---:|---:|---:|"]
+             "eval first >= target, from command start | eval first >= 90%, training s | frames/s: collection | updates | both |",
+             "|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         ttt = f"{r['command_to_target_s']:.0f} s ({r['frames_to_target']:,} frames)" if r["command_to_target_s"] is not None else "never"
+        f90 = r.get("first_90")
+        t90 = f"{f90[1]:.0f} s ({f90[0]:,} frames)" if f90 else "never"
         lines.append(f"| {r['seed']} | {100 * r['score']:.1f}% | [{100 * r['ci95'][0]:.1f}, {100 * r['ci95'][1]:.1f}] | "
-                     f"{r['command_wall_s']:.0f} s | {r['train_wall_s']:.0f} s | {ttt} | "
+                     f"{r['command_wall_s']:.0f} s | {r['train_wall_s']:.0f} s | {ttt} | {t90} | "
                      f"{r['collect_fps']:,.0f} | {r['update_fps']:,.0f} | {r['train_fps']:,.0f} |")
     reached = [r["command_to_target_s"] for r in rows if r["command_to_target_s"] is not None]
+    r90 = [r["first_90"][1] for r in rows if r.get("first_90")]
     lines.append(f"| **mean (sd)** | **{_mean_sd([100 * r['score'] for r in rows])}%** | | "
                  f"{_mean_sd([r['command_wall_s'] for r in rows])} s | {_mean_sd([r['train_wall_s'] for r in rows])} s | "
-                 f"{_mean_sd(reached) + (' s' if reached else '')} ({len(reached)}/{len(rows)} seeds) | {_mean_sd([r['collect_fps'] for r in rows], 0)} | "
+                 f"{_mean_sd(reached) + (' s' if reached else '')} ({len(reached)}/{len(rows)} seeds) | "
+                 f"{_mean_sd(r90) + (' s' if r90 else '')} ({len(r90)}/{len(rows)} seeds) | {_mean_sd([r['collect_fps'] for r in rows], 0)} | "
                  f"{_mean_sd([r['update_fps'] for r in rows], 0)} | {_mean_sd([r['train_fps'] for r in rows], 0)} |")
     title = recipe + (f", next to {busy} busy process{'es' if busy > 1 else ''}" if busy else "")
     return f"{title}\n\n" + "\n".join(lines)
@@ -106,11 +126,18 @@ def main(argv: list[str]) -> list[dict]:
         overrides = []
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recipe", choices=RECIPES)
+    p.add_argument("--table", default=None, metavar="JSON", help="no runs: print the table of a --json file written earlier (filling in what it lacks from its runs' logs)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--out", default=None, help="parent of the run directories (default runs/bench_<recipe>_<time>; an existing run in it is not overwritten)")
     p.add_argument("--json", default=None, help="also write the rows as JSON here")
     p.add_argument("--busy", type=int, default=0, help="run this many CPU-bound processes next to each run (contention)")
     a = p.parse_args(argv)
+    if a.table:
+        rows = json.loads(Path(a.table).read_text())["rows"]
+        for r in rows:
+            r.setdefault("first_90", first_reached(Path(r["run_dir"]), 0.9))
+        print(table(a.recipe, rows))
+        return rows
     out = Path(a.out or ROOT / "runs" / f"bench_{a.recipe}_{time.strftime('%Y%m%d_%H%M%S')}")
     load = os.getloadavg()[0]
     if load > 0.5:

@@ -127,10 +127,11 @@ for _keys, _rule in {
     ("seed",): (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
     ("env.num_envs", "env.max_steps", "train.total_frames", "train.frames_per_batch", "train.updates_per_batch", "train.batch_size",
      "train.buffer_size", "train.policy_delay", "train.epochs", "train.minibatch_size", "eval.episodes", "eval.final_episodes",
-     "eval.laps", "checkpoint.interval_frames"): (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
-    ("train.init_random_frames", "train.expl_anneal_frames", "train.eps_anneal_frames", "train.obs_stats_steps",
+     "eval.laps", "checkpoint.interval_frames", "train.horizon", "train.critic_epochs"): (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    ("train.init_random_frames", "train.expl_anneal_frames", "smooth.ramp_frames", "train.eps_anneal_frames", "train.obs_stats_steps",
      "eval.interval_frames", "eval.record_episodes"): (lambda v: _is_int(v) and v >= 0, "an integer >= 0"),
-    ("train.lr*", "train.max_grad_norm", "train.clip_epsilon", "train.alpha_init", "env.goal_tolerance"):
+    ("train.lr*", "train.max_grad_norm", "train.skip_grad_norm", "train.clip_epsilon", "train.alpha_init", "env.goal_tolerance",
+     "smooth.contact_margin"):
         (lambda v: _is_num(v) and v > 0, "a finite number > 0"),
     ("train.policy_noise", "train.noise_clip", "train.expl_sigma_init", "train.expl_sigma_end", "train.entropy_coeff",
      "train.critic_coeff"): (lambda v: _is_num(v) and v >= 0, "a finite number >= 0"),
@@ -139,7 +140,7 @@ for _keys, _rule in {
     ("train.init_log_std",): (_is_num, "a finite number"),
     ("train.hidden",): (lambda v: isinstance(v, list) and len(v) > 0 and all(_is_int(h) and h >= 1 for h in v), "a non-empty list of integers >= 1"),
     ("train.activation",): (lambda v: v in ("relu", "tanh"), "relu or tanh"),
-    ("env.compile_step", "logger.progress"): (lambda v: isinstance(v, bool), "true or false"),
+    ("env.compile_step", "logger.progress", "train.lr_decay"): (lambda v: isinstance(v, bool), "true or false"),
     ("device",): (lambda v: isinstance(v, str) and re.fullmatch(r"cpu|cuda(:\d+)?", v) is not None, "cpu, cuda or cuda:N"),
 }.items():
     for _k in _keys:

@@ -29,6 +29,8 @@ TINY_ARGS = {
     "sac_lidar": COMMON + OFF_POLICY,
     "ppo_lidar": COMMON + ["train.frames_per_batch=128", "train.minibatch_size=64", "train.epochs=2", "train.hidden=[32,32]",
                            "train.obs_stats_steps=4"],
+    # growth: the resume check below wants the curriculum radius to move (APG's default is goals anywhere)
+    "apg_lidar": COMMON + ["train.horizon=8", "train.minibatch_size=64", "train.hidden=[32,32]", "curriculum.mode=growth"],
 }
 
 
@@ -211,6 +213,7 @@ LINE_ARGS = {
     "ppo_line": LINE_COMMON + ["train.frames_per_batch=128", "train.minibatch_size=64", "train.epochs=2"],
     "dqn_line": LINE_COMMON + ["train.frames_per_batch=128", "train.init_random_frames=128", "train.updates_per_batch=4",
                                "train.batch_size=32", "train.buffer_size=10000"],
+    "apg_line": [a for a in LINE_COMMON if a != "train.obs_stats_steps=4"] + ["train.horizon=8", "train.minibatch_size=64"],
 }
 
 
@@ -232,6 +235,8 @@ def test_line_recipe_smoke_resume_and_export(tmp_path, recipe):
     assert sp.task == "line" and sp.config().track == "oval"
     if recipe == "dqn_line":
         assert sp.actor.output == "argmax" and sp.action_table is not None and sp.action_table.shape == (len(sp.config().action.discrete_set), 2)
+    elif recipe == "apg_line":  # no observation statistics: they would cost env steps, and the readings are in [0, 1]
+        assert sp.actor.output == "tanh" and sp.algorithm == "apg"
     else:
         assert sp.actor.output == "tanh" and sp.actor.obs_scale.ne(1).any(), "observation normalisation was not baked in"
     rec = read_recording(run / "episodes.mcap")
@@ -278,6 +283,9 @@ def test_training_bench_runs_seeds_and_tabulates(tmp_path):
     assert json.loads((tmp_path / "t.json").read_text())["rows"][0]["frames"] == 256
     assert rows[0]["collect_fps"] > 0 and rows[0]["update_fps"] > 0 and rows[0]["train_fps"] > 0
     assert "| 3 |" in training.table("ppo_line", rows)
+    assert "first_90" in rows[0]  # (frames, training s) of the first periodic evaluation >= 90%, or None
+    again = training.main(["ppo_line", "--table", str(tmp_path / "t.json")])  # re-tabulated from the JSON, no run
+    assert again[0]["score"] == rows[0]["score"] and again[0]["first_90"] == (list(rows[0]["first_90"]) if rows[0]["first_90"] else None)
 
 
 def test_training_bench_busy_processes_run_and_are_stopped():

@@ -86,6 +86,35 @@ class BatchedEnv(EnvBase):
         td.update({"reward": out["reward"][:, None], "done": terminated | truncated, "terminated": terminated, "truncated": truncated})
         return td
 
+    # -- differentiable rollouts: the task on the env's state, outside TorchRL's step ---------
+
+    def advance(self, action: torch.Tensor) -> tuple[Any, dict[str, torch.Tensor]]:
+        """One step of the task on the env's current state, then new episodes where one ended.
+
+        What ``step`` does without TorchRL's specs, output TensorDict or action checks, and
+        without ``torch.no_grad``: the new state keeps the autograd graph from ``action`` (and
+        from earlier steps, until :meth:`detach_state`), so a loss on the task's outputs can be
+        backpropagated through the simulator (recipes/apg_lidar.py). The curriculum advances
+        as in ``step``. A reset replaces only the finished envs' rows, out of place: their fresh
+        state carries no graph, the others keep theirs.
+
+        Returns the state before the reset (the finished episodes' last state) and the task's
+        ``out`` dict (``observation`` is also the one before the reset).
+        """
+        state, out = self.task.step(self._state, action, self._generator)
+        self._state = state
+        self._after_step(out)
+        self._state = self._new_state(out["terminated"] | out["truncated"])
+        return state, out
+
+    def observation(self) -> torch.Tensor:
+        """The policy's observation ``(B, obs_size)`` of the current state (with its graph, after :meth:`advance`)."""
+        return self._reset_view(self._state)[0]
+
+    def detach_state(self) -> None:
+        """Cut the autograd graph of the current state (between the horizons of a differentiable rollout)."""
+        self._state = self._state.detach()
+
     def _new_state(self, mask: torch.Tensor | None) -> Any:
         raise NotImplementedError
 
