@@ -224,14 +224,17 @@ def render_test(net: Network, name: str) -> str:
 def export_c(net: Network, out_dir: str | Path, name: str = "policy") -> list[Path]:
     """Write ``<name>.h``, ``<name>.c`` and ``<name>_test.c`` into ``out_dir`` (created if missing); returns their paths."""
     check_name(name)
+    return write_files(out_dir, {f"{name}.h": render_header(net, name), f"{name}.c": render_source(net, name), f"{name}_test.c": render_test(net, name)})
+
+
+def write_files(out_dir: str | Path, files: dict[str, str]) -> list[Path]:
+    """Write ``{file name: text}`` into ``out_dir`` (created if missing); returns the paths in order."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    files = {f"{name}.h": render_header(net, name), f"{name}.c": render_source(net, name), f"{name}_test.c": render_test(net, name)}
     paths = []
     for fname, text in files.items():
-        p = out_dir / fname
-        p.write_text(text)
-        paths.append(p)
+        (out_dir / fname).write_text(text)
+        paths.append(out_dir / fname)
     return paths
 
 

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from .c import write_files
 from .common import Network, compare
 
 TARGETS = ("host", "cortex-m4f")
@@ -309,16 +310,8 @@ clean:
 
 def export_cortex_m4f(net: Network, out_dir: str | Path, name: str = "policy") -> list[Path]:
     """Write the bare-metal files (``<name>_m4.c``, ``startup_m4.c``, the linker script, ``Makefile``) into ``out_dir``."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    files = {f"{name}_m4.c": _firmware(net, name), "startup_m4.c": _startup(), LINKER_SCRIPT: _linker_script(),
-             "Makefile": _makefile(name)}
-    paths = []
-    for fname, text in files.items():
-        p = out_dir / fname
-        p.write_text(text)
-        paths.append(p)
-    return paths
+    return write_files(out_dir, {f"{name}_m4.c": _firmware(net, name), "startup_m4.c": _startup(), LINKER_SCRIPT: _linker_script(),
+                                 "Makefile": _makefile(name)})
 
 
 def _run(cmd: list[str], what: str, **kw: Any) -> subprocess.CompletedProcess:
