@@ -165,6 +165,21 @@ def test_goals_get_farther_with_difficulty(name):
     assert (easy.path_length >= 1.0).all()
 
 
+def test_anywhere_goals_leave_the_band_and_zero_leaves_the_worlds_alone():
+    banded = make_worlds("rooms", 256, 0.8, gen(4))
+    default = make_worlds("rooms", 256, 0.8, gen(4), anywhere_goals=0.0)
+    assert torch.equal(banded.goal, default.goal) and torch.equal(banded.start, default.start)
+    anywhere = make_worlds("rooms", 256, 0.8, gen(4), anywhere_goals=1.0)
+    # difficulty 0.8 bands goals to 52-92% of the farthest path (over 6 m in these rooms); anywhere ones start at 0.5 m
+    assert banded.path_length.min() > 5.0
+    assert anywhere.path_length.min() >= 0.5 - 0.15 and (anywhere.path_length < 3.0).sum() >= 5
+    assert (points_clearance(anywhere.goal[:, None], anywhere.world)[:, 0] > anywhere.robot_radius).all()
+    half = mix_worlds(512, {"rooms": 1.0, "open": 1.0}, 0.8, gen(5), anywhere_goals=0.5)
+    assert 0.05 < float((half.path_length < 5.0).float().mean()) < 0.5
+    with pytest.raises(ValueError, match=r"anywhere_goals must be in \[0, 1\], got 1.5"):
+        make_worlds("rooms", 2, 0.5, gen(), anywhere_goals=1.5)
+
+
 # ---------------------------------------------------------------------------------- errors
 
 

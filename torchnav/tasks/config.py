@@ -158,6 +158,7 @@ class WorldsConfig:
     difficulty_step: float = 0.05  # added per finished episode batch while above the threshold
     success_smoothing: float = 0.02  # weight of each finished episode in its family's success average
     max_difficulty: float = 1.0  # cap of the curriculum
+    anywhere_goals: float = 0.0  # fraction of episodes whose goal is anywhere reachable (>= 0.5 m), not in the difficulty's band
 
 
 @dataclass(frozen=True)
@@ -201,6 +202,7 @@ class NavConfig:
             (0 <= w.difficulty <= w.max_difficulty <= 1, "worlds needs 0 <= difficulty <= max_difficulty <= 1"),
             (0 < w.success_threshold < 1 and w.difficulty_step >= 0, "worlds needs 0 < success_threshold < 1 and difficulty_step >= 0"),
             (0 < w.success_smoothing <= 1, "worlds.success_smoothing must be in (0, 1]"),
+            (0 <= w.anywhere_goals <= 1, f"worlds.anywhere_goals must be in [0, 1], got {w.anywhere_goals}"),
             (all(v >= 0 for v in w.families.values()) and (not w.families or sum(w.families.values()) > 0),
              f"worlds.families weights must be >= 0 with a positive sum, got {w.families}"),
         ]

@@ -193,7 +193,8 @@ class NavTask(BatchedTask):
         """``n`` procedural episodes: padded worlds, starts ``(n, 3)``, goals ``(n, 2)``, family
         indices ``(n,)`` and difficulties ``(n,)``, each family at its curriculum difficulty."""
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
-        batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, gen, self.device, self.dtype, self.cfg.robot.radius)
+        batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, gen, self.device, self.dtype, self.cfg.robot.radius,
+                           self.cfg.worlds.anywhere_goals)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
         return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty
 

@@ -31,6 +31,7 @@ from .wavefront import ORTHO, UNREACHED, geodesic_distance
 
 GOAL_BAND_EASY = (0.1, 0.4)  # goal path length as a fraction of the farthest reachable one, at difficulty 0
 GOAL_BAND_HARD = (0.6, 1.0)  # ... and at difficulty 1 (linear in between)
+ANYWHERE_MIN_GOAL = 0.5  # m of path, the least goal distance of an "anywhere" goal (the maps' curriculum.min_radius)
 START_REDRAWS = 2  # redraws of a start that lies in a small free component
 _CELLS_PER_CHUNK = 1 << 18  # envs are placed in chunks of at most this many grid cells (small chunks stay in cache)
 
@@ -91,14 +92,16 @@ def _start_and_distances(free: Tensor, gen: torch.Generator) -> tuple[Tensor, Te
     return start, dist
 
 
-def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: float, gen: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
-    """Start cell, goal cell (flat indices, ``(B,)``) and the path length between them in cells."""
+def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywhere: Tensor, gen: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
+    """Start cell, goal cell (flat indices, ``(B,)``) and the path length between them in cells;
+    where ``anywhere`` ``(B,)`` is True the band is every reachable cell."""
     start, dist = _start_and_distances(free, gen)
     reached = dist < UNREACHED
     cells = dist.to(torch.float64) / ORTHO
     far = torch.where(reached, cells, 0.0).amax(1, keepdim=True)
     lo, hi = goal_band(difficulty.to(torch.float64))
-    in_band = reached & (cells >= lo[:, None] * far) & (cells <= hi[:, None] * far) & (cells >= min_goal_cells)
+    lo, hi = torch.where(anywhere, 0.0, lo), torch.where(anywhere, 1.0, hi)
+    in_band = reached & (cells >= lo[:, None] * far) & (cells <= hi[:, None] * far) & (cells >= min_goal_cells[:, None])
     # Fallback when the band is empty (a component too small for min_goal): the farthest reachable cell.
     farthest = torch.where(reached, cells, -1.0).argmax(1)
     goal = torch.where(in_band.any(1), _random_cell(in_band, gen), farthest)
@@ -106,14 +109,16 @@ def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: float, gen: t
 
 
 def _place(
-    world: World, bounds: Tensor, difficulty: Tensor, gen: torch.Generator, robot_radius: float, resolution: float, min_goal_distance: float
+    world: World, bounds: Tensor, difficulty: Tensor, anywhere: Tensor, gen: torch.Generator, robot_radius: float, resolution: float,
+    min_goal_distance: float,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`place_episodes` for one chunk of envs."""
     free, centres = free_cells(world, bounds, robot_radius, resolution)
     empty = ~free.flatten(1).any(1)
     if empty.any():
         raise ValueError(f"no free space for a robot of radius {robot_radius} m at resolution {resolution} m in {int(empty.sum())} env(s)")
-    start_cell, goal_cell, cells = _place_chunk(free, difficulty, min_goal_distance / resolution, gen)
+    min_goal = torch.where(anywhere, min(ANYWHERE_MIN_GOAL, min_goal_distance), min_goal_distance).to(torch.float64) / resolution
+    start_cell, goal_cell, cells = _place_chunk(free, difficulty, min_goal, anywhere, gen)
     n, like, flat = bounds.shape[0], bounds, centres.reshape(-1, 2)
     jitter = uniform(-0.5 * resolution, 0.5 * resolution, (2, n, 2), gen, like)
     heading = uniform(-math.pi, math.pi, (n, 1), gen, like)
@@ -129,19 +134,24 @@ def place_episodes(
     robot_radius: float = 0.2,
     resolution: float = 0.1,
     min_goal_distance: float = 1.0,
+    anywhere: Tensor | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Start poses ``(B, 3)``, goals ``(B, 2)`` and path lengths ``(B,)`` (m) in ``world``.
 
     ``bounds`` ``(B, 4)`` ``[xmin, ymin, xmax, ymax]`` m per env; ``difficulty`` ``(B,)`` in
     [0, 1] sets the goal band (:func:`goal_band`); goals are at least
     ``min_goal_distance`` m of path from the start when the start's component allows
-    (else the goal is the farthest reachable cell). The start lies in a free
+    (else the goal is the farthest reachable cell). Where ``anywhere`` ``(B,)`` (bool) is
+    True the goal is drawn among every reachable cell at least ``min(0.5, min_goal_distance)``
+    m of path away, whatever the difficulty (as goals are on maps in evaluation). The start lies in a free
     component holding at least half of the free space where one does (see
     :func:`_start_and_distances`), with a uniform heading. Raises ValueError if
     some env has no free cell for a disc of ``robot_radius`` m.
     Envs are processed in chunks of similar world size, of at most ``2**18`` grid cells
     (faster in cache than all at once).
     """
+    if anywhere is None:
+        anywhere = torch.zeros(bounds.shape[0], dtype=torch.bool, device=bounds.device)
     # Chunks of envs of similar size, so a chunk's grid fits its envs closely.
     cells = ((bounds[:, 2:] - bounds[:, :2]) / resolution + 1).prod(1)
     order = torch.argsort(cells, stable=True)
@@ -152,7 +162,7 @@ def place_episodes(
         while j < len(sizes) and (j + 1 - i) * sizes[j] <= _CELLS_PER_CHUNK:
             j += 1
         idx = order[i:j]
-        parts.append(_place(world[idx], bounds[idx], difficulty[idx], gen, robot_radius, resolution, min_goal_distance))
+        parts.append(_place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], gen, robot_radius, resolution, min_goal_distance))
         i = j
     inverse = torch.argsort(order)
     return tuple(torch.cat(t)[inverse] for t in zip(*parts))
