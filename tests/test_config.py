@@ -89,6 +89,7 @@ def test_numbers_are_coerced_sensibly():
         ({"action": {"discrete_set": [[1.0, 0.0]]}}, "at least 2 actions"),
         ({"observation": {"history": 0}}, "observation.history must be >= 1"),
         ({"worlds": {"anywhere_goals": 1.2}}, "worlds.anywhere_goals must be in [0, 1], got 1.2"),
+        ({"worlds": {"below_level": 2.0}}, "worlds.below_level must be in [0, 1], got 2.0"),
         ({"reset": {"candidates": 0}}, "reset.candidates must be >= 1"),
         ({"reset": {"goal_clearance": -0.1}}, "reset clearances must be >= 0"),
         ({"lidar": {"n_rays": 30, "n_sectors": 20}}, "robot/lidar: lidar.n_sectors must divide n_rays=30"),

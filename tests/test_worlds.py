@@ -180,6 +180,23 @@ def test_anywhere_goals_leave_the_band_and_zero_leaves_the_worlds_alone():
         make_worlds("rooms", 2, 0.5, gen(), anywhere_goals=1.5)
 
 
+def test_below_level_draws_easier_worlds_and_records_each_difficulty():
+    at_level = make_worlds("corridors", 64, 0.8, gen(6), below_level=0.0)
+    assert torch.equal(at_level.world.segments, make_worlds("corridors", 64, 0.8, gen(6)).world.segments)
+    mixed = make_worlds("corridors", 400, 0.8, gen(6), below_level=0.5)
+    d = mixed.difficulty
+    below = d < 0.8 - 1e-6
+    assert (d >= 0).all() and (d <= 0.8 + 1e-6).all()
+    assert 0.4 < float(below.float().mean()) < 0.6 and float(d[below].mean()) == pytest.approx(0.4, abs=0.06)
+    # each env's world is generated at its own difficulty: the maze's cells grow 4 -> 9 with it
+    side = mixed.bounds[:, 2] - mixed.bounds[:, 0]
+    width = FAMILIES["corridors"].params(d)["corridor_width"]
+    cells = FAMILIES["corridors"].params(d)["cells_per_side"]
+    assert torch.allclose(side, width * cells, atol=1e-4)
+    with pytest.raises(ValueError, match=r"below_level must be in \[0, 1\], got -0.1"):
+        mix_worlds(2, ["rooms"], 0.5, gen(), below_level=-0.1)
+
+
 # ---------------------------------------------------------------------------------- errors
 
 

@@ -159,6 +159,7 @@ class WorldsConfig:
     success_smoothing: float = 0.02  # weight of each finished episode in its family's success average
     max_difficulty: float = 1.0  # cap of the curriculum
     anywhere_goals: float = 0.0  # fraction of episodes whose goal is anywhere reachable (>= 0.5 m), not in the difficulty's band
+    below_level: float = 0.0  # fraction of episodes whose difficulty is drawn uniformly below their family's level, in [0, level)
 
 
 @dataclass(frozen=True)
@@ -203,6 +204,7 @@ class NavConfig:
             (0 < w.success_threshold < 1 and w.difficulty_step >= 0, "worlds needs 0 < success_threshold < 1 and difficulty_step >= 0"),
             (0 < w.success_smoothing <= 1, "worlds.success_smoothing must be in (0, 1]"),
             (0 <= w.anywhere_goals <= 1, f"worlds.anywhere_goals must be in [0, 1], got {w.anywhere_goals}"),
+            (0 <= w.below_level <= 1, f"worlds.below_level must be in [0, 1], got {w.below_level}"),
             (all(v >= 0 for v in w.families.values()) and (not w.families or sum(w.families.values()) > 0),
              f"worlds.families weights must be >= 0 with a positive sum, got {w.families}"),
         ]

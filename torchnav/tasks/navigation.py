@@ -194,7 +194,7 @@ class NavTask(BatchedTask):
         indices ``(n,)`` and difficulties ``(n,)``, each family at its curriculum difficulty."""
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
         batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, gen, self.device, self.dtype, self.cfg.robot.radius,
-                           self.cfg.worlds.anywhere_goals)
+                           self.cfg.worlds.anywhere_goals, self.cfg.worlds.below_level)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
         return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty
 

@@ -67,6 +67,7 @@ def make_worlds(
     dtype: torch.dtype = torch.float32,
     robot_radius: float = 0.2,
     anywhere_goals: float = 0.0,
+    below_level: float = 0.0,
 ) -> WorldBatch:
     """``num_envs`` worlds of one family, each with a start and a reachable goal.
 
@@ -79,12 +80,19 @@ def make_worlds(
     start-goal path is planned for. ``anywhere_goals``: the fraction of envs (drawn per env)
     whose goal lies anywhere reachable, at least 0.5 m of path away, instead of in the
     difficulty's band (:func:`~torchnav.worlds.place_episodes`); at 0 no number is drawn for
-    it, so the worlds are those of earlier versions. Worlds of one family share their slot counts.
+    it, so the worlds are those of earlier versions. ``below_level``: the fraction of envs
+    (drawn per env) whose difficulty is drawn uniformly below the given one, in ``[0, d)``
+    (a curriculum keeps easier worlds in training as it rises); the batch's ``difficulty``
+    holds each env's own. Worlds of one family share their slot counts.
     """
-    if not 0.0 <= anywhere_goals <= 1.0:
-        raise ValueError(f"anywhere_goals must be in [0, 1], got {anywhere_goals}")
+    for name, share in (("anywhere_goals", anywhere_goals), ("below_level", below_level)):
+        if not 0.0 <= share <= 1.0:
+            raise ValueError(f"{name} must be in [0, 1], got {share}")
     dev = _device(generator, device)
     d = as_difficulty(difficulty, num_envs, dev, dtype)
+    if below_level > 0:
+        below = torch.rand(num_envs, generator=generator, device=dev) < below_level
+        d = torch.where(below, d * torch.rand(num_envs, generator=generator, device=dev, dtype=dtype), d)
     world, bounds, resolution = _layout(family, d, generator, dtype)
     anywhere = torch.rand(num_envs, generator=generator, device=dev) < anywhere_goals if anywhere_goals > 0 else None
     start, goal, length = place_episodes(world, bounds, d, generator, robot_radius=robot_radius, resolution=resolution, anywhere=anywhere)
@@ -103,13 +111,14 @@ def mix_worlds(
     dtype: torch.dtype = torch.float32,
     robot_radius: float = 0.2,
     anywhere_goals: float = 0.0,
+    below_level: float = 0.0,
 ) -> WorldBatch:
     """``num_envs`` worlds whose family is drawn per env from ``families``.
 
     ``families``: names as for :func:`make_worlds` (drawn uniformly) or a mapping of
     name to weight (drawn in proportion). ``difficulty``: as for :func:`make_worlds`, or a
     mapping of family name to its own difficulty (a number or 0-d tensor; a per-family
-    curriculum). ``anywhere_goals`` as for :func:`make_worlds`. Each family is generated once for all of
+    curriculum). ``anywhere_goals`` and ``below_level`` as for :func:`make_worlds`. Each family is generated once for all of
     its envs; obstacle slots are padded to the largest count of each kind
     (:func:`~torchnav.sim.cat_worlds`), and envs keep the order of the draw.
     """
@@ -133,6 +142,6 @@ def mix_worlds(
         idx = (drawn == k).nonzero()[:, 0]
         if idx.numel():
             level = difficulty[name] if d is None else d[idx]
-            parts.append(make_worlds(name, idx.numel(), level, generator, dev, dtype, robot_radius, anywhere_goals))
+            parts.append(make_worlds(name, idx.numel(), level, generator, dev, dtype, robot_radius, anywhere_goals, below_level))
             order.append(idx)
     return cat_batches(parts).select(torch.cat(order).argsort())
