@@ -18,7 +18,7 @@ from typing import Any, Callable, Iterable
 
 import torch
 from omegaconf import OmegaConf
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tqdm import tqdm
 
 import _common as C
@@ -204,6 +204,7 @@ class Trainer:
                                          "time_to_target": None, "frames_to_target": None, "target_unix": None}
         # the deterministic actor to evaluate and save; each recipe sets this after building its networks
         self.export_actor: Callable[[], Actor] = self._no_actor
+        self._collector: Any = None
 
     @property
     def fresh(self) -> bool:
@@ -214,6 +215,9 @@ class Trainer:
         if self.ckpt is None:
             return
         for k, m in modules.items():
+            if k not in self.ckpt and isinstance(m, ReplayState):
+                print(f"resume: {self.run} holds no replay buffer (written by an older torchnav); it starts empty")
+                continue
             m.load_state_dict(self.ckpt[k])
         self.env.load_state_dict(self.ckpt["env"])
         C.set_rng_states(self.ckpt["rng"])
@@ -229,8 +233,10 @@ class Trainer:
     def save(self, algo_state: Callable[[], dict[str, Any]], meta: dict[str, Any]) -> None:
         """``checkpoint.pt`` (everything to resume) and ``actor.pt`` (the deterministic policy), both atomic."""
         actor = self.export_actor()
+        carrier = getattr(self._collector, "_carrier", None)  # the collector's current step (TorchRL keeps it private)
         C.save_checkpoint(self.run / "checkpoint.pt", {
             "format": self.ckpt_format, **algo_state(), "env": self.env.state_dict(), "rng": C.rng_states(),
+            **({"carrier": carrier.to_dict()} if carrier is not None else {}),
             "counters": dict(self.counters), "config": C.config_dict(self.cfg), "policy": policy_payload(actor, **meta),
         })
         save_policy(self.run / "actor.pt", actor, **meta)
@@ -253,10 +259,19 @@ class Trainer:
         """Run the loop; returns True if it was stopped by a signal (a checkpoint was written either way)."""
         cfg, c, log = self.cfg, self.counters, self.logger
         meta = meta or self.policy_meta()
+        self._collector = collector
+        if self.ckpt is not None and collector is not None and "carrier" in self.ckpt:
+            # Making the collector reset every env: put back the episodes in flight, the step the
+            # collector was at and the RNGs, so a resumed run continues exactly where it stopped.
+            self.env.load_state_dict(self.ckpt["env"])
+            collector._carrier = TensorDict.from_dict(self.ckpt["carrier"], batch_size=self.env.batch_size, device=self.env.device)
+            C.set_rng_states(self.ckpt["rng"])
         recent = collections.deque(maxlen=RECENT_EPISODES)  # outcome flags of recent training episodes
         stop = C.StopFlag()
         bar = tqdm(total=int(cfg.train.total_frames), initial=int(c["frames"]), unit="fr", disable=not cfg.logger.progress, dynamic_ncols=True)
-        last_ckpt = last_eval = c["frames"]
+        # evaluation and checkpoints at multiples of their intervals, so a resumed run keeps the same schedule
+        every = lambda interval: int(c["frames"]) // int(interval) if interval else 0  # noqa: E731
+        last_ckpt, last_eval = every(cfg.checkpoint.interval_frames), every(cfg.eval.interval_frames)
         t_start = time.perf_counter() - c["wall_time"]
         losses: dict[str, float] = {}
         try:
@@ -283,8 +298,8 @@ class Trainer:
                                  "time/wall_s": c["wall_time"], **{f"loss/{k}": float(v) for k, v in losses.items()},
                                  **self.task.scalars(self.env)}.items():
                         log.log_scalar(k, v, step=c["frames"])
-                if cfg.eval.interval_frames and c["frames"] - last_eval >= cfg.eval.interval_frames:
-                    last_eval = c["frames"]
+                if cfg.eval.interval_frames and every(cfg.eval.interval_frames) > last_eval:
+                    last_eval = every(cfg.eval.interval_frames)
                     t_eval = time.perf_counter()
                     s = self.evaluate(int(cfg.eval.episodes), PERIODIC_EVAL_SEED + int(cfg.seed))
                     c["eval_s"] += time.perf_counter() - t_eval
@@ -294,8 +309,8 @@ class Trainer:
                     bar.write(f"[eval @ {c['frames']:,} frames, {c['wall_time']:.0f} s] {self.task.describe(s)}")
                     if c["time_to_target"] is None and s["score"] >= cfg.eval.target_success:
                         c["time_to_target"], c["frames_to_target"], c["target_unix"] = c["wall_time"], c["frames"], time.time()
-                if c["frames"] - last_ckpt >= cfg.checkpoint.interval_frames:
-                    last_ckpt = c["frames"]
+                if every(cfg.checkpoint.interval_frames) > last_ckpt:
+                    last_ckpt = every(cfg.checkpoint.interval_frames)
                     self.save(algo_state, meta)
                 if self.threads.update() is not None:
                     bar.write(f"[threads] {self.threads.threads} (other processes use {self.threads.changes[-1][2]:.1f} of {self.threads.cores} cores)")
@@ -308,9 +323,9 @@ class Trainer:
         finally:
             bar.close()
             stop.restore()
+            self.save(algo_state, meta)  # before shutdown, which drops the collector's current step
             if collector is not None and hasattr(collector, "shutdown"):
                 collector.shutdown()
-            self.save(algo_state, meta)
         if stop.stop:
             print(f"stopped at {c['frames']:,} frames; checkpoint in {self.run / 'checkpoint.pt'}; continue with --resume={self.run}")
         return stop.stop
@@ -366,6 +381,26 @@ def _log_rates(logger, prefix: str, summary: dict[str, Any], step: int) -> None:
 
 
 REPLAY_KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))
+
+
+class ReplayState:
+    """A replay buffer's content and write position as checkpoint state: add it to a recipe's
+    checkpointed modules (``state_dict``/``load_state_dict``) and a resumed run samples the
+    same transitions. Only the filled rows are saved."""
+
+    def __init__(self, buffer) -> None:
+        self.buffer = buffer
+
+    def state_dict(self) -> dict[str, Any]:
+        b = self.buffer
+        rows = b.storage._storage[: len(b)] if len(b) else None
+        return {"rows": None if rows is None else rows.to_dict(), "cursor": b._writer._cursor, "write_count": b._writer._write_count}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        if state["rows"] is not None:
+            rows = TensorDict.from_dict(state["rows"], auto_batch_size=True, batch_dims=1)
+            self.buffer.extend(rows.exclude("index") if "index" in rows.keys() else rows)
+        self.buffer._writer._cursor, self.buffer._writer._write_count = state["cursor"], state["write_count"]
 
 
 def replay_update(trainer: Trainer, buffer, step_fn) -> Callable[[TensorDictBase], dict[str, float]]:

@@ -154,7 +154,8 @@ def main(argv: list[str], name: str = "apg_lidar", adapter: type = NavAdapter) -
         """The smoothed terms, their weight ramped from 0 over ``smooth.ramp_frames`` (continuation:
         learn to move before learning to keep away; a full weight at once can teach standing still)."""
         return term(state) * (min(1.0, t.counters["frames"] / ramp) if ramp else 1.0)
-    env.reset()  # episodes in flight are not checkpointed: a resumed run starts fresh ones
+    if t.fresh:  # a resumed run continues the checkpoint's episodes
+        env.reset()
 
     def sigma() -> float:
         """Exploration noise, annealed linearly over ``train.expl_anneal_frames``."""

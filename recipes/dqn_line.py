@@ -27,7 +27,7 @@ from torchrl.objectives import DQNLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import LineAdapter, Trainer, replay_update  # noqa: E402
+from _train import LineAdapter, ReplayState, Trainer, replay_update  # noqa: E402
 from ppo_lidar import observation_stats  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
@@ -51,6 +51,7 @@ def main(argv: list[str]) -> dict:
                                 annealing_num_steps=int(tc.eps_anneal_frames), device=device)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
     modules = {"loss": loss, "optim": optim, "exploration": exploration}
+    modules["replay"] = ReplayState(buffer)  # checkpointed too: a resumed run samples the same transitions
     t.restore(modules)
     t.export_actor = lambda: qnet
 
@@ -66,7 +67,7 @@ def main(argv: list[str]) -> dict:
     remaining = t.remaining_frames()
     collector = Collector(
         env, TensorDictSequential(qvalue, exploration), frames_per_batch=int(tc.frames_per_batch),
-        total_frames=max(remaining, int(tc.frames_per_batch)), init_random_frames=int(tc.init_random_frames) if t.fresh else 0,
+        total_frames=max(remaining, int(tc.frames_per_batch)), init_random_frames=max(0, int(tc.init_random_frames) - int(t.counters["frames"])),
         device=device, auto_register_policy_transforms=False,
     ) if remaining > 0 else None
     stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()},

@@ -27,7 +27,7 @@ from torchrl.objectives import SACLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import Trainer, replay_update  # noqa: E402
+from _train import ReplayState, Trainer, replay_update  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -59,6 +59,7 @@ def main(argv: list[str]) -> dict:
     opt_alpha = torch.optim.Adam([loss.log_alpha], lr=tc.lr_alpha)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
     modules = {"loss": loss, "opt_actor": opt_actor, "opt_critic": opt_critic, "opt_alpha": opt_alpha}
+    modules["replay"] = ReplayState(buffer)  # checkpointed too: a resumed run samples the same transitions
     t.restore(modules)
     t.export_actor = lambda: net.squashed(act_size)  # deterministic action tanh(loc)
 
@@ -79,7 +80,7 @@ def main(argv: list[str]) -> dict:
     remaining = t.remaining_frames()
     collector = Collector(
         env, actor, frames_per_batch=int(tc.frames_per_batch), total_frames=max(remaining, int(tc.frames_per_batch)),
-        init_random_frames=int(tc.init_random_frames) if t.fresh else 0, device=device, auto_register_policy_transforms=False,
+        init_random_frames=max(0, int(tc.init_random_frames) - int(t.counters["frames"])), device=device, auto_register_policy_transforms=False,
     ) if remaining > 0 else None
     stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()})
     if stopped:

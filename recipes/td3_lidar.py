@@ -31,7 +31,7 @@ from torchrl.modules import MLP, AdditiveGaussianModule
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import Trainer, replay_update  # noqa: E402
+from _train import ReplayState, Trainer, replay_update  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -74,6 +74,7 @@ def main(argv: list[str]) -> dict:
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
     modules = {"actor": actor, "critic": critic, "actor_target": actor_target, "critic_target": critic_target,
                "opt_actor": opt_actor, "opt_critic": opt_critic, "exploration": exploration}
+    modules["replay"] = ReplayState(buffer)  # checkpointed too: a resumed run samples the same transitions
     t.restore(modules)
     t.export_actor = lambda: actor
     gamma, tau, noise, clip = float(tc.gamma), float(tc.tau), float(tc.policy_noise), float(tc.noise_clip)
@@ -106,7 +107,7 @@ def main(argv: list[str]) -> dict:
     policy = TensorDictSequential(TensorDictModule(actor, in_keys=["observation"], out_keys=["action"]), exploration)
     collector = Collector(
         env, policy, frames_per_batch=int(tc.frames_per_batch),
-        total_frames=max(remaining, int(tc.frames_per_batch)), init_random_frames=int(tc.init_random_frames) if t.fresh else 0,
+        total_frames=max(remaining, int(tc.frames_per_batch)), init_random_frames=max(0, int(tc.init_random_frames) - int(t.counters["frames"])),
         device=device, auto_register_policy_transforms=False,
     ) if remaining > 0 else None
     stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()},

@@ -378,6 +378,26 @@ def test_collector_collects_a_couple_of_batches():
     assert batches[1]["next", "done"].any() and (batches[1]["next", "episode", "length"] <= 7).all()
 
 
+def test_a_loaded_env_continues_its_episodes_and_pool_exactly():
+    kw = dict(num_envs=4, max_steps=20, worlds={"families": {"rooms": 1.0, "forest": 1.0}, "difficulty": 0.3},
+              reset={"pool": 8, "reuse": 2})
+    env = make_env("arena", seed=3, **kw)
+    env.rollout(25, SeededPolicy(1), break_when_any_done=False)  # episodes mid-way, the pool part-used
+    sd = env.state_dict()
+    assert int(sd["_extra_state"]["pool"]["pos"]) > 0
+    other = make_env("arena", seed=99, **kw)  # another seed: everything must come from the state dict
+    other.load_state_dict(sd)
+    torch.testing.assert_close(other.state.sim.pose, env.state.sim.pose, rtol=0, atol=0)
+    pa, pb = SeededPolicy(2), SeededPolicy(2)
+    ta = tb = TensorDict({}, batch_size=[4])
+    for _ in range(30):  # through episode ends: resets draw from the restored pool and generator
+        out_a, ta = env.step_and_maybe_reset(pa(ta))
+        out_b, tb = other.step_and_maybe_reset(pb(tb))
+        for key in ("observation", "reward", "done", "pose"):
+            assert torch.equal(out_a["next", key], out_b["next", key]), key
+    assert int(env.curriculum.placements) > int(sd["_extra_state"]["curriculum"]["placements"])  # episodes were reset on the way
+
+
 def test_transforms_compose():
     env = TransformedEnv(make_env("arena", num_envs=3, max_steps=6), Compose(StepCounter(), RewardSum()))
     check_env_specs(env)

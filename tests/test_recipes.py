@@ -30,7 +30,9 @@ TINY_ARGS = {
     "ppo_lidar": COMMON + ["train.frames_per_batch=128", "train.minibatch_size=64", "train.epochs=2", "train.hidden=[32,32]",
                            "train.obs_stats_steps=4"],
     # growth: the resume check below wants the curriculum radius to move (APG's default is goals anywhere)
-    "apg_lidar": COMMON + ["train.horizon=8", "train.minibatch_size=64", "train.hidden=[32,32]", "curriculum.mode=growth"],
+    # lr_decay off: APG's learning rate falls to 0 at train.total_frames, so raising it on resume would
+    # change the schedule, and the resume check below compares with an uninterrupted run
+    "apg_lidar": COMMON + ["train.horizon=8", "train.minibatch_size=64", "train.hidden=[32,32]", "curriculum.mode=growth", "train.lr_decay=false"],
 }
 
 
@@ -78,6 +80,18 @@ def test_recipe_smoke_and_resume(tmp_path, recipe):
     assert ck2["counters"]["updates"] > ck["counters"]["updates"]
     assert int(ck2["env"]["_extra_state"]["curriculum"]["placements"]) > placements
     assert float(ck2["env"]["_extra_state"]["curriculum"]["radius"]) > float(ck["env"]["_extra_state"]["curriculum"]["radius"])
+
+    # ... and ends bit-identical to an uninterrupted run with the same seed (episodes in flight,
+    # the collector's step, the replay buffer, RNGs and the evaluation/checkpoint schedule restored)
+    _run(recipe, tiny + ["train.total_frames=1024", f"logger.run_dir={tmp_path / 'whole'}"])
+    assert_same_weights(run / "actor.pt", tmp_path / "whole" / "actor.pt")
+
+
+def assert_same_weights(a, b):
+    wa, wb = torch.load(a, weights_only=True)["state"], torch.load(b, weights_only=True)["state"]
+    assert wa.keys() == wb.keys()
+    for k in wa:
+        assert torch.equal(wa[k], wb[k]), f"{k} differs by {float((wa[k] - wb[k]).abs().max())}"
 
 
 def test_resume_refuses_another_recipes_checkpoint(tmp_path):
@@ -213,7 +227,7 @@ LINE_ARGS = {
     "ppo_line": LINE_COMMON + ["train.frames_per_batch=128", "train.minibatch_size=64", "train.epochs=2"],
     "dqn_line": LINE_COMMON + ["train.frames_per_batch=128", "train.init_random_frames=128", "train.updates_per_batch=4",
                                "train.batch_size=32", "train.buffer_size=10000"],
-    "apg_line": [a for a in LINE_COMMON if a != "train.obs_stats_steps=4"] + ["train.horizon=8", "train.minibatch_size=64"],
+    "apg_line": [a for a in LINE_COMMON if a != "train.obs_stats_steps=4"] + ["train.horizon=8", "train.minibatch_size=64", "train.lr_decay=false"],
 }
 
 
@@ -245,6 +259,8 @@ def test_line_recipe_smoke_resume_and_export(tmp_path, recipe):
 
     res2 = _run(recipe, LINE_ARGS[recipe] + ["train.total_frames=1024", f"checkpoint.resume={run}"])
     assert res2["frames"] == 1024
+    _run(recipe, LINE_ARGS[recipe] + ["train.total_frames=1024", f"logger.run_dir={tmp_path / 'whole'}"])
+    assert_same_weights(run / "actor.pt", tmp_path / "whole" / "actor.pt")
 
     out = export(run / "actor.pt", onnx_path=tmp_path / "p.onnx", c_dir=tmp_path / "c", verify=64)
     assert (tmp_path / "p.onnx").is_file() and (tmp_path / "c" / "policy.c").is_file()

@@ -57,12 +57,17 @@ def content_hash(payload: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
-def _non_finite(obj: Any, path: str = "") -> str | None:
+INF_ALLOWED = ("env",)  # payload keys whose tensors may hold inf (an env's "no limit" parameters), never NaN
+
+
+def _non_finite(obj: Any, path: str = "", allow_inf: bool = False) -> str | None:
     if isinstance(obj, torch.Tensor):
-        return path if obj.is_floating_point() and not bool(torch.isfinite(obj).all()) else None
+        if not obj.is_floating_point():
+            return None
+        return path if bool(obj.isnan().any()) or (not allow_inf and not bool(torch.isfinite(obj).all())) else None
     items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, (list, tuple)) else ()
     for k, v in items:
-        bad = _non_finite(v, f"{path}.{k}" if path else str(k))
+        bad = _non_finite(v, f"{path}.{k}" if path else str(k), allow_inf or (not path and k in INF_ALLOWED))
         if bad is not None:
             return bad
     return None

@@ -73,7 +73,8 @@ class Actor(nn.Module):
         """A ``tanh`` copy of this network keeping the first ``n`` outputs: the deterministic
         action ``tanh(loc)`` of a Gaussian policy whose (linear) head emits ``loc`` first."""
         n = self.out_size if n is None else n
-        out = Actor(self.obs_size, n, self.hidden, self.activation, output="tanh").to(self.obs_loc.device)
+        with torch.random.fork_rng(devices=[]):  # the copy's random init is overwritten: leave the global RNG as it was
+            out = Actor(self.obs_size, n, self.hidden, self.activation, output="tanh").to(self.obs_loc.device)
         state = {k: v.detach().clone() for k, v in self.state_dict().items()}
         last = f"net.{len(self.net) - 1}"
         state[f"{last}.weight"], state[f"{last}.bias"] = state[f"{last}.weight"][:n], state[f"{last}.bias"][:n]

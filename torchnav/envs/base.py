@@ -18,6 +18,14 @@ from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 from torchrl.envs import EnvBase
 
 
+def _leaves(d: dict[str, Any]):
+    for v in d.values():
+        if isinstance(v, dict):
+            yield from _leaves(v)
+        else:
+            yield v
+
+
 class BatchedEnv(EnvBase):
     """``batch_size=(num_envs,)`` env stepping a pure task with one ``torch.Generator`` seeded by ``seed``."""
 
@@ -141,15 +149,34 @@ class BatchedEnv(EnvBase):
 
     # Checkpoint state goes through nn.Module's extra-state hooks, so ``env.state_dict()`` and
     # ``env.load_state_dict(sd)`` keep nn.Module's signatures and a TransformedEnv's state_dict
-    # includes it (under ``base_env._extra_state``). Episodes in flight are not saved.
+    # includes it (under ``base_env._extra_state``). The episodes in flight are saved as plain
+    # nested dicts of tensors (checkpoints load with ``weights_only=True``).
 
     def get_extra_state(self) -> dict[str, Any]:
-        """The generator's state (NavEnv adds the curriculum)."""
-        return {"generator": self._generator.get_state()}
+        """The generator's state and the episodes in flight (NavEnv adds the curriculum and its episode pool)."""
+        out: dict[str, Any] = {"generator": self._generator.get_state()}
+        if self._state is not None:
+            out["episodes"] = self._state.to_dict()
+        return out
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
+        if "episodes" in state:
+            self._state = self.state_from_dict(state["episodes"])
         if "generator" in state:
             self._generator.set_state(state["generator"])
+
+    def state_from_dict(self, d: dict[str, Any]) -> Any:
+        """A task state (of any batch size) rebuilt from its ``to_dict()`` form, in the structure
+        of this env's states; a ValueError names a key whose shape does not fit."""
+        if self._state is None:
+            self._state = self._new_state(None)
+        n = next(_leaves(d)).shape[0]
+        like = self._state[torch.zeros(n, dtype=torch.long, device=self.device)]
+        try:
+            return like.apply(lambda old, new: new.to(device=old.device, dtype=old.dtype).expand_as(old).clone(),
+                              TensorDict.from_dict(d, batch_size=[n]))
+        except (RuntimeError, KeyError) as e:
+            raise ValueError(f"{type(self).__name__}: saved episodes do not fit this env's task config ({e})") from None
 
     def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
         """nn.Module's, also accepting the ``{"curriculum", "generator"}`` dict that checkpoints

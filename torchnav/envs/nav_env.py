@@ -105,12 +105,19 @@ class NavEnv(BatchedEnv):
     # -- state for checkpoints and recording ------------------------------------------------
 
     def get_extra_state(self) -> dict[str, Any]:
-        """Curriculum and generator state: ``env.state_dict()["_extra_state"]``."""
-        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state()}
+        """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""
+        t = self.task
+        pool = None if t._pool is None else {"episodes": t._pool.to_dict(), "pos": t._pool_pos, "passes": t._pool_passes}
+        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": pool}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
+        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum
         self.curriculum.load_state_dict(state["curriculum"])
-        super().set_extra_state(state)
+        if "pool" in state:  # absent from checkpoints written before episodes were saved
+            pool = state["pool"]
+            t = self.task
+            t._pool = None if pool is None else self.state_from_dict(pool["episodes"])
+            t._pool_pos, t._pool_passes = (0, 0) if pool is None else (int(pool["pos"]), int(pool["passes"]))
 
 
 def make_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
