@@ -236,7 +236,7 @@ class Trainer:
         carrier = getattr(self._collector, "_carrier", None)  # the collector's current step (TorchRL keeps it private)
         C.save_checkpoint(self.run / "checkpoint.pt", {
             "format": self.ckpt_format, **algo_state(), "env": self.env.state_dict(), "rng": C.rng_states(),
-            **({"carrier": carrier.to_dict()} if carrier is not None else {}),
+            **({"carrier": carrier.clone().to_dict()} if carrier is not None else {}),
             "counters": dict(self.counters), "config": C.config_dict(self.cfg), "policy": policy_payload(actor, **meta),
         })
         save_policy(self.run / "actor.pt", actor, **meta)
@@ -393,7 +393,7 @@ class ReplayState:
 
     def state_dict(self) -> dict[str, Any]:
         b = self.buffer
-        rows = b.storage._storage[: len(b)] if len(b) else None
+        rows = b.storage._storage[: len(b)].clone() if len(b) else None  # a copy: a view would save the whole capacity
         return {"rows": None if rows is None else rows.to_dict(), "cursor": b._writer._cursor, "write_count": b._writer._write_count}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:

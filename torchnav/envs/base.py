@@ -156,7 +156,7 @@ class BatchedEnv(EnvBase):
         """The generator's state and the episodes in flight (NavEnv adds the curriculum and its episode pool)."""
         out: dict[str, Any] = {"generator": self._generator.get_state()}
         if self._state is not None:
-            out["episodes"] = self._state.to_dict()
+            out["episodes"] = self._state.clone().to_dict()  # copies: a view would save its whole storage
         return out
 
     def set_extra_state(self, state: dict[str, Any]) -> None:

@@ -107,7 +107,7 @@ class NavEnv(BatchedEnv):
     def get_extra_state(self) -> dict[str, Any]:
         """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""
         t = self.task
-        pool = None if t._pool is None else {"episodes": t._pool.to_dict(), "pos": t._pool_pos, "passes": t._pool_passes}
+        pool = None if t._pool is None else {"episodes": t._pool.clone().to_dict(), "pos": t._pool_pos, "passes": t._pool_passes}
         return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": pool}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
