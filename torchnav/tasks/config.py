@@ -158,6 +158,27 @@ class WorldsConfig:
     difficulty_step: float = 0.05  # added per finished episode batch while above the threshold
     success_smoothing: float = 0.02  # weight of each finished episode in its family's success average
     max_difficulty: float = 1.0  # cap of the curriculum
+    # Moving discs placed in every generated world at reset, as a map's `moving_circles` (docs/worlds.md)
+    # without `region`: they move inside each world's bounds. Empty: none.
+    movers: dict[str, Any] = field(default_factory=dict)
+
+    def mover_spec(self):
+        """``movers`` validated as a :class:`~torchnav.maps.spec.MovingCircles` (``ConfigError`` naming
+        ``worlds.movers.<key>``), or None when empty."""
+        if not self.movers:
+            return None
+        from ..maps.loader import _moving_circles
+        from ..yamlcheck import Ctx
+
+        class KeyCtx(Ctx):  # errors read "worlds.movers.<key>: ...", like the other config errors
+            def fail(self, key: str, msg: str) -> Exception:
+                return self.error(f"{key}: {msg}")
+
+        if not isinstance(self.movers, Mapping):
+            raise ConfigError(f"worlds.movers: expected a mapping like a map's moving_circles, got {self.movers!r}")
+        if "region" in self.movers:
+            raise ConfigError("worlds.movers.region: not allowed: movers move inside each generated world's bounds")
+        return _moving_circles(KeyCtx("", ConfigError), dict(self.movers), (math.inf, math.inf), "worlds.movers")
 
 
 @dataclass(frozen=True)
@@ -209,6 +230,8 @@ class NavConfig:
                 raise ConfigError(msg)
         for name in w.families:
             _check_family(name)
+        if w.mover_spec() is not None and not w.families:
+            raise ConfigError("worlds.movers needs worlds.families (a map declares its movers as moving_circles)")
         params = self.sim_params()  # validates robot and lidar fields
         try:
             check_ranges(self.randomize.ranges(), params)
