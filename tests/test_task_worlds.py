@@ -127,16 +127,19 @@ def test_planners_refuse_procedural_worlds_by_name():
         make_controller("astar", nav=env.cfg).bind(env)
 
 
-def test_episodes_on_procedural_worlds_record_with_their_worlds(tmp_path):
+@pytest.mark.parametrize("movers", [{}, {"count": 2, "radius": [0.2, 0.3], "speed": [0.2, 0.4]}], ids=["static", "movers"])
+def test_episodes_on_procedural_worlds_record_with_their_worlds(tmp_path, movers):
     from torchnav.controllers import make_controller
     from torchnav.evaluation import record_episodes
     from torchnav.record.reader import read_recording
 
-    cfg = worlds_cfg()
+    cfg = worlds_cfg(movers=movers)
     path = tmp_path / "worlds.mcap"
     record_episodes(make_controller("reactive", nav=cfg), cfg, path, 2, seed=0)
-    episodes = read_recording(path).episodes()
+    rec = read_recording(path)
+    episodes = rec.episodes()
     assert len(episodes) == 2 and all(ep.start["world"]["segments"] for ep in episodes)
+    assert any(m.topic.endswith("/movers") for m in rec.messages) == bool(movers)
 
 
 def test_generated_worlds_hold_their_movers_inside_their_own_bounds():
