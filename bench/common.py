@@ -7,9 +7,10 @@ timed threads on a small CPU machine). The scripts are run as files
 
 Method, shared by every benchmark:
 
-* a run of ``steps`` calls is timed as a whole (``time.perf_counter``, with a
-  device synchronisation before and after on CUDA); ``warmup`` untimed calls
-  come first;
+* a run of ``steps`` calls is timed as a whole (``CLOCK``: ``time.perf_counter``, with a
+  device synchronisation before and after on CUDA; a script may set it to
+  ``time.process_time``, see ``sim_throughput.py --cpu-time``); ``warmup`` untimed
+  calls come first;
 * the run is repeated ``repeats`` times; the reported rate is the median of
   the per-run rates, with the min and max as the spread;
 * compile time (first call of a compiled function, including its warm-up) is
@@ -134,6 +135,9 @@ class Timing:
         return 1e6 * statistics.median(self.seconds) / self.steps
 
 
+CLOCK = time.perf_counter  # what time_calls measures: wall time by default
+
+
 def time_calls(
     fn: Callable[[], Any],
     *,
@@ -154,11 +158,11 @@ def time_calls(
     t = Timing(items_per_call=items_per_call, steps=steps)
     for _ in range(repeats):
         sync(device)
-        t0 = time.perf_counter()
+        t0 = CLOCK()
         for _ in range(steps):
             fn()
         sync(device)
-        t.seconds.append(time.perf_counter() - t0)
+        t.seconds.append(CLOCK() - t0)
     return t
 
 

@@ -25,6 +25,7 @@ docs/performance.md for the method and what each figure means.
     python bench/sim_throughput.py --quick              # seconds-long smoke run (eager modes only)
     python bench/sim_throughput.py --sizes 4096 --modes eager,compiled --stages
     python bench/sim_throughput.py --device cpu --sizes 4096 --modes eager --options imu,camera64,movers4
+    python bench/sim_throughput.py --device cpu --threads 1 --cpu-time --sizes 4096 --modes compiled --options pedestrians4
 
 ``--options`` adds rows of the same load with one simulator option switched on
 (``OPTIONS``: the IMU, the camera's depth row, moving discs), each next to the plain
@@ -202,6 +203,7 @@ def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, 
             "env_steps_per_s": None, "env_steps_per_s_min": None, "env_steps_per_s_max": None, "step_us": None,
             "compile_s": None, "peak_mem_bytes": None, "peak_mem_method": None,
             "steps": None, "repeats": args.repeats, "threads": torch.get_num_threads(), "load": LOAD,
+            "clock": "cpu" if args.cpu_time else "wall",
         }
         if mode.startswith("compiled") or mode == "cudagraphs":
             if not args.dynamic or num_envs == args.sizes[0]:
@@ -334,6 +336,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--stages", action="store_true", help="also time each stage of the step (at 4096 envs or the largest size below)")
     p.add_argument("--options", type=lambda s: [x for x in s.split(",") if x], default=None,
                    help=f"comma-separated simulator options to time next to the plain step, from {','.join(o for o in OPTIONS if o != 'plain')}")
+    p.add_argument("--cpu-time", action="store_true",
+                   help="time runs in this process's CPU time (time.process_time) instead of wall time: on a shared "
+                        "machine, time spent waiting for a core is not counted (meaningful with --threads 1 on CPU)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object per line as well as the tables")
     p.add_argument("--quick", action="store_true", help="tiny sizes, few steps, eager modes only: a smoke test")
@@ -359,12 +364,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     args = parse_args(argv)
     common.set_threads(args.threads)
+    if args.cpu_time:
+        common.CLOCK = time.process_time
     records: list[dict[str, Any]] = []
     log = sys.stderr if args.json else sys.stdout  # with --json, stdout holds only JSON lines
     for device in common.resolve_devices(args.device):
         modes = [m for m in args.modes if m != "cudagraphs" or device.startswith("cuda")]
         info = common.machine_info(device)
-        print(f"\n== sim_throughput on {device}: {LOAD}", file=log)
+        print(f"\n== sim_throughput on {device}: {LOAD}" + (" (rates in CPU time: --cpu-time)" if args.cpu_time else ""), file=log)
         print("   " + ", ".join(f"{k}={v}" for k, v in info.items()), file=log)
         warn = common.load_warning(device)
         if warn:

@@ -32,7 +32,7 @@ def _positive(x) -> bool:
 def test_bench_scripts_quick_json():
     cmds = {
         "sim": [sys.executable, str(ROOT / "bench" / "sim_throughput.py"), "--quick", "--json", "--device", "cpu", "--threads", "1", "--sizes", "1,64",
-                "--options", "imu,camera16,movers4"],
+                "--options", "imu,camera16,movers4", "--cpu-time"],
         "env": [sys.executable, str(ROOT / "bench" / "env_throughput.py"), "--quick", "--json", "--threads", "1", "--num-envs", "32"],
     }
     procs = {k: subprocess.Popen(c, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k, c in cmds.items()}
@@ -49,7 +49,7 @@ def test_bench_scripts_quick_json():
     for r in rows:
         assert SIM_KEYS <= r.keys(), SIM_KEYS - r.keys()
         assert "error" not in r, r["error"]
-        assert r["device"] == "cpu" and _positive(r["env_steps_per_s"])
+        assert r["device"] == "cpu" and _positive(r["env_steps_per_s"]) and r["clock"] == "cpu"  # --cpu-time
         assert r["env_steps_per_s_min"] <= r["env_steps_per_s"] <= r["env_steps_per_s_max"]
         assert isinstance(r["peak_mem_bytes"], int) and r["peak_mem_bytes"] >= 0 and r["peak_mem_method"]
     assert "ratios against eager" in sim_log and "env-steps/s" in sim_log  # the table went to stderr

@@ -172,7 +172,7 @@ def test_docs_list_every_config_field_with_its_default():
             assert doc in (expected, str(value)), (key, doc, value)
         elif value is None:  # optional ranges (randomize), off by default
             assert doc == "null", (key, doc)
-        elif key in ("reward.weights", "worlds.families"):  # dicts, empty by default
+        elif key in ("reward.weights", "worlds.families", "worlds.movers"):  # dicts, empty by default
             assert doc == "{}", (key, doc)
         elif key == "action.discrete_set":
             assert f"{len(value)} actions" in doc, (key, doc)

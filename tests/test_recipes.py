@@ -317,9 +317,11 @@ SHIPPED = sorted((ROOT / "checkpoints").glob("*.pt"))
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
-def test_shipped_checkpoints_load_and_drive(path):
+def test_shipped_checkpoints_load_and_drive(path, monkeypatch):
     """Every shipped policy loads, matches its task's observation size and completes short episodes."""
     from torchnav.policy import load_policy
+
+    monkeypatch.chdir(ROOT)  # ppo_movers_actor's map is a path from the repository root
 
     assert len(SHIPPED) >= 5
     sp = load_policy(path)
@@ -339,3 +341,23 @@ def test_shipped_checkpoints_load_and_drive(path):
 
         res = run_line_episodes(sp.policy, cfg, 8, seed=1)
         assert res["lap_complete"].sum() >= 6, f"{path.name} completed only {int(res['lap_complete'].sum())}/8 laps"
+
+
+def test_movers_policy_evaluates_on_its_map_and_config_validates(monkeypatch):
+    """The shipped movers policy and its recipe config: the map has the arena's boxes plus 4 bouncing
+    discs, the config is the fast arena recipe on that map, and evaluate.py runs the policy there."""
+    import evaluate
+    from _common import load_config
+
+    from torchnav.maps import load_map
+
+    monkeypatch.chdir(ROOT)
+    spec, arena = load_map("recipes/maps/arena_movers.yaml"), load_map("arena")
+    assert spec.random_boxes == arena.random_boxes and spec.size == arena.size
+    assert spec.moving_circles.count == 4 and spec.moving_circles.motion == "bounce"
+    cfg = load_config("ppo_lidar", ["--config", "recipes/configs/ppo_movers.yaml"])
+    base = load_config("ppo_lidar", [])
+    assert cfg.env.map == "recipes/maps/arena_movers.yaml"
+    assert {**cfg.train} == {**base.train} and cfg.env.num_envs == base.env.num_envs
+    out = evaluate.main(["checkpoints/ppo_movers_actor.pt", "--episodes", "20", "--threads", "1"])
+    assert out["map"] == "recipes/maps/arena_movers.yaml" and out["success"]["rate"] >= 0.8

@@ -496,3 +496,21 @@ def test_randomize_config_errors_and_evaluation_switch():
     assert set(eval_config(cfg, randomize_off=["delay", "dropout"]).randomize.ranges()) == set(RANDOMIZE) - {"delay", "dropout"}
     with pytest.raises(ValueError, match="unknown"):
         eval_config(cfg, randomize_off=["mass"])
+
+
+def test_movers_are_stepped_mover_major_with_the_same_results():
+    """step_movers returns (and init_state holds) movers and plans stored mover-major, so the next
+    step reads them without a copy; a contiguous input gives bit-identical values."""
+    from torchnav.sim.movers import is_mover_major, mover_major, step_movers
+
+    discs = [[-1.0, 0.0, 0.4, 0.1, 0.3], [1.0, 0.2, -0.3, 0.0, 0.25], [0.0, 1.0, 0.0, -0.5, 0.2]]
+    rows, mask, plan = make_movers(5, discs, region=(-3, -3, 3, 3), waypoints=[[[2.0, 2.0], [-2.0, 0.0]], [[0.0, -2.0]], []],
+                                   pedestrians=True)
+    robot = torch.tensor([[0.5, 0.5]]).expand(5, 2)
+    assert not is_mover_major(rows) and is_mover_major(mover_major(rows)) and torch.equal(mover_major(rows), rows)
+    a_rows, a_plan = step_movers(rows, plan, mask, 0.1, robot, 0.2)
+    b_rows, b_plan = step_movers(mover_major(rows), mover_major(plan), mask, 0.1, robot, 0.2)
+    assert torch.equal(a_rows, b_rows) and torch.equal(a_plan, b_plan)
+    assert is_mover_major(a_rows) and is_mover_major(a_plan) and a_rows.shape == rows.shape and a_plan.shape == plan.shape
+    s = init_state(torch.zeros(5, 3), make_world(5), SimParams(), movers=(rows, mask, plan))
+    assert is_mover_major(s.movers) and is_mover_major(s.mover_plan) and torch.equal(s.movers, rows)

@@ -89,6 +89,12 @@ def test_curriculum_state_round_trips_and_old_checkpoints_load():
     ({"families": {"forest": -1.0}}, "weights must be >= 0"),
     ({"families": {"forest": 1.0}, "difficulty": 1.5}, "difficulty"),
     ({"families": {"forest": 1.0}, "curriculum": True, "success_threshold": 1.0}, "success_threshold"),
+    ({"families": {"forest": 1.0}, "movers": {"count": 2, "speed": [0.1, 0.2]}}, r"worlds\.movers.*radius"),
+    ({"families": {"forest": 1.0}, "movers": {"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "region": [0, 0, 1, 1]}},
+     r"worlds\.movers\.region: not allowed"),
+    ({"families": {"forest": 1.0}, "movers": {"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "motion": "fly"}},
+     r"worlds\.movers\.motion"),
+    ({"movers": {"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2]}}, "worlds.movers needs worlds.families"),
 ])
 def test_bad_worlds_config_is_named(worlds, match):
     with pytest.raises(ConfigError, match=match):
@@ -121,13 +127,41 @@ def test_planners_refuse_procedural_worlds_by_name():
         make_controller("astar", nav=env.cfg).bind(env)
 
 
-def test_episodes_on_procedural_worlds_record_with_their_worlds(tmp_path):
+@pytest.mark.parametrize("movers", [{}, {"count": 2, "radius": [0.2, 0.3], "speed": [0.2, 0.4]}], ids=["static", "movers"])
+def test_episodes_on_procedural_worlds_record_with_their_worlds(tmp_path, movers):
     from torchnav.controllers import make_controller
     from torchnav.evaluation import record_episodes
     from torchnav.record.reader import read_recording
 
-    cfg = worlds_cfg()
+    cfg = worlds_cfg(movers=movers)
     path = tmp_path / "worlds.mcap"
     record_episodes(make_controller("reactive", nav=cfg), cfg, path, 2, seed=0)
-    episodes = read_recording(path).episodes()
+    rec = read_recording(path)
+    episodes = rec.episodes()
     assert len(episodes) == 2 and all(ep.start["world"]["segments"] for ep in episodes)
+    assert any(m.topic.endswith("/movers") for m in rec.messages) == bool(movers)
+
+
+def test_generated_worlds_hold_their_movers_inside_their_own_bounds():
+    """``worlds.movers``: every generated world gets the movers, placed clear of the start and the goal
+    and moving inside that world's bounds (worlds of different sizes in one batch); eval_config
+    on a map drops them (the map's own moving_circles apply)."""
+    from torchnav.evaluation import eval_config
+
+    movers = {"count": 3, "radius": [0.2, 0.3], "speed": [0.2, 0.4], "motion": "pedestrian", "clearance": 1.0}
+    env = NavEnv(worlds_cfg(movers=movers), num_envs=24, seed=1)
+    env.reset()
+    s = env.state
+    m, mask = s.sim.movers, s.sim.mover_mask
+    assert m.shape == (24, 3, 9) and mask.float().mean() > 0.5 and s.sim.mover_plan.shape[-1] == 4 + 2 * 4
+    x, y, r, reg = m[..., 0], m[..., 1], m[..., 4], m[..., 5:9]
+    assert len({tuple(row) for row in reg[:, 0].tolist()}) > 1  # each env's own bounds
+    inside = (x - r >= reg[..., 0] - 1e-5) & (x + r <= reg[..., 2] + 1e-5) & (y - r >= reg[..., 1] - 1e-5) & (y + r <= reg[..., 3] + 1e-5)
+    assert inside[mask].all()
+    to_start = (m[..., :2] - s.start[:, None, :2]).norm(dim=-1) - r
+    to_goal = (m[..., :2] - s.goal[:, None]).norm(dim=-1) - r
+    assert (to_start[mask] >= 1.0 - 1e-4).all() and (to_goal[mask] >= 1.0 - 1e-4).all()
+    assert (disc_clearance(s.sim.pose, s.world, 0.0) > env.cfg.robot.radius).all()
+    env.rollout(20, break_when_any_done=False)  # steps and resets with movers
+    on_map = eval_config(env.cfg, map="arena")
+    assert on_map.worlds.movers == {} and on_map.worlds.families == {}

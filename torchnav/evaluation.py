@@ -73,7 +73,7 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
     over: dict[str, Any] = {}
     if map is not None:
         over["map"] = map
-        d["worlds"] = {**d["worlds"], "families": {}}
+        d["worlds"] = {**d["worlds"], "families": {}, "movers": {}}  # the map's own moving_circles apply
     if worlds is not None:
         d["worlds"] = {**d["worlds"], **worlds, "curriculum": False}
     if randomize_off:

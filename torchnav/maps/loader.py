@@ -199,8 +199,9 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
     return rc
 
 
-def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> MovingCircles:
-    k = "moving_circles"
+def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_circles") -> MovingCircles:
+    """``v`` validated as :class:`MovingCircles`; errors name ``k`` (the key: also used for the
+    procedural worlds' ``worlds.movers``, ``tasks.config.WorldsConfig``)."""
     v = check_mapping(ctx, v, k, ("count", "radius", "speed"), ("motion", "region", "clearance", "margin", "waypoints"))
     d = MovingCircles.__dataclass_fields__
     motion = v.get("motion", d["motion"].default)

@@ -124,36 +124,50 @@ def no_movers(batch_size: int, like: Tensor) -> Movers:
 def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[Tensor, Tensor]:
     """Every mover ``(B, M, 9)`` and its plan advanced by ``dt`` s (module docstring). Pure.
 
-    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` (m, or ``(B,)``) are what pedestrians avoid besides each other."""
+    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` (m, or ``(B,)``) are what pedestrians avoid besides each other.
+
+    The results have the shapes of the inputs but are stored mover-major (``mover_major``:
+    ``movers[..., k]`` is a contiguous ``(M, B)`` block), the layout the maths runs in, so a
+    state stepped again is read without a copy."""
     if movers.shape[1] == 0:
         return movers, plan
-    x, y, vx, vy, r, xmin, ymin, xmax, ymax = movers.unbind(-1)
+    cols = mover_major(movers)  # (B, M, 9) viewed from (9, M, B) storage
+    x, y, vx, vy, r, xmin, ymin, xmax, ymax = (cols[..., k].t() for k in range(N_MOVER_FIELDS))  # (M, B) each
     if plan.shape[-1]:
-        (vx, vy), plan = _steer(movers, plan, mask, dt, robot_xy, robot_radius)
+        plan = mover_major(plan)
+        (vx, vy), plan = _steer((x, y, vx, vy, r), plan, mask, dt, robot_xy, robot_radius)
     x, vx = _bounce(x + vx * dt, vx, xmin + r, xmax - r)
     y, vy = _bounce(y + vy * dt, vy, ymin + r, ymax - r)
-    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax), -1), plan
+    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax)).permute(2, 1, 0), plan
 
 
-def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
-    """New velocities of patrols and pedestrians (ballistic movers keep theirs) and the plan with
-    reached waypoints advanced.
+def is_mover_major(x: Tensor) -> bool:
+    """Whether ``x`` ``(B, M, k)`` is stored as a contiguous ``(k, M, B)`` tensor."""
+    return x.permute(2, 1, 0).is_contiguous()
 
-    Written on ``(M, B)`` components (a mover-major copy, so the batch is the contiguous
+
+def mover_major(x: Tensor) -> Tensor:
+    """``x`` ``(B, M, k)`` (same shape and values) stored mover-major: ``x`` itself when it already
+    is, else a copy made by an opaque op (``torch.compile`` would otherwise fuse the transposed
+    reads into its loops and iterate over the batch's few movers innermost, unvectorised)."""
+    return x if is_mover_major(x) else _planar_copy(x.transpose(0, 1)).permute(2, 1, 0)
+
+
+def _steer(cols: tuple[Tensor, ...], plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
+    """New velocities ``(M, B)`` of patrols and pedestrians (ballistic movers keep theirs) and the
+    mover-major plan ``(B, M, 4 + 2P)`` with reached waypoints advanced.
+
+    Written on ``(M, B)`` components ``cols`` = ``x, y, vx, vy, r`` (the batch the contiguous
     inner dimension) with short Python loops over the waypoints and the other movers:
     compiled, this fuses into vectorised passes, about 2.5x faster than the same maths on
     ``(B, M, M + 1, 2)`` pair tensors, whose inner dimension of a few movers does not vectorise."""
-    # Materialised by an opaque op: torch.compile would otherwise fuse the transposed reads
-    # into its loops and iterate over the batch's few movers innermost, unvectorised.
-    cols = _planar_copy(movers[..., :5].transpose(0, 1))  # (5, M, B)
-    pc = _planar_copy(plan.transpose(0, 1))  # (4 + 2P, M, B)
-    kind, speed, target, n = pc[0], pc[1], pc[2], pc[3]
-    x, y, vx, vy, r = cols.unbind(0)
+    kind, speed, target, n = (plan[..., k].t() for k in range(4))
+    x, y, vx, vy, r = cols
     mask = mask.t()
     gx, gy = torch.zeros_like(x), torch.zeros_like(y)
-    for k in range((pc.shape[0] - 4) // 2):  # the next waypoint
+    for k in range((plan.shape[-1] - 4) // 2):  # the next waypoint
         here = target == k
-        gx, gy = torch.where(here, pc[4 + 2 * k], gx), torch.where(here, pc[5 + 2 * k], gy)
+        gx, gy = torch.where(here, plan[..., 4 + 2 * k].t(), gx), torch.where(here, plan[..., 5 + 2 * k].t(), gy)
     tx, ty = gx - x, gy - y
     dist = safe_hypot(tx, ty)
     ped = kind == PEDESTRIAN
@@ -184,8 +198,9 @@ def _steer(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tens
     cap = torch.minimum(torch.ones_like(speed), PED_MAX_SPEED * speed / safe_hypot(qx, qy).clamp(min=1e-9))
     nvx, nvy = torch.where(ped, qx * cap, nvx), torch.where(ped, qy * cap, nvy)
     target = torch.where(arrived, torch.remainder(target + 1, n.clamp(min=1)), target)
-    plan = torch.cat((plan[..., :2], target.t()[..., None], plan[..., 3:]), -1)
-    return (nvx.t(), nvy.t()), plan
+    fields = [plan[..., k].t() for k in range(plan.shape[-1])]
+    fields[2] = target
+    return (nvx, nvy), torch.stack(fields).permute(2, 1, 0)
 
 
 def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:

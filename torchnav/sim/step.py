@@ -20,7 +20,7 @@ from .geometry import disc_clearance
 from .imu import step_imu
 from .kinematics import apply_limits, integrate, unicycle_to_wheels, wheels_to_unicycle
 from .lidar import lidar_scan
-from .movers import Movers, mover_world, no_movers, step_movers
+from .movers import Movers, mover_major, mover_world, no_movers, step_movers
 from .params import SimParams
 from .randomize import EnvParams
 from .state import SimState, World, check_world, planar_world
@@ -166,6 +166,10 @@ def init_state(
         raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device}")
     if plan.numel() == 0:  # canonical strides for an empty plan (an expanded one would make torch.compile recompile)
         plan = rows.new_zeros(plan.shape)
+    else:
+        plan = mover_major(plan.to(rows.dtype))
+    if rows.shape[1]:  # the layout step_movers returns: the first step reads the same strides as the next ones
+        rows = mover_major(rows)
     n_imu = 0 if params.imu is None else 3
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)

@@ -160,6 +160,27 @@ class WorldsConfig:
     max_difficulty: float = 1.0  # cap of the curriculum
     anywhere_goals: float = 0.0  # fraction of episodes whose goal is anywhere reachable (>= 0.5 m), not in the difficulty's band
     below_level: float = 0.0  # fraction of episodes whose difficulty is drawn uniformly below their family's level, in [0, level)
+    # Moving discs placed in every generated world at reset, as a map's `moving_circles` (docs/worlds.md)
+    # without `region`: they move inside each world's bounds. Empty: none.
+    movers: dict[str, Any] = field(default_factory=dict)
+
+    def mover_spec(self):
+        """``movers`` validated as a :class:`~torchnav.maps.spec.MovingCircles` (``ConfigError`` naming
+        ``worlds.movers.<key>``), or None when empty."""
+        if not self.movers:
+            return None
+        from ..maps.loader import _moving_circles
+        from ..yamlcheck import Ctx
+
+        class KeyCtx(Ctx):  # errors read "worlds.movers.<key>: ...", like the other config errors
+            def fail(self, key: str, msg: str) -> Exception:
+                return self.error(f"{key}: {msg}")
+
+        if not isinstance(self.movers, Mapping):
+            raise ConfigError(f"worlds.movers: expected a mapping like a map's moving_circles, got {self.movers!r}")
+        if "region" in self.movers:
+            raise ConfigError("worlds.movers.region: not allowed: movers move inside each generated world's bounds")
+        return _moving_circles(KeyCtx("", ConfigError), dict(self.movers), (math.inf, math.inf), "worlds.movers")
 
 
 @dataclass(frozen=True)
@@ -213,6 +234,8 @@ class NavConfig:
                 raise ConfigError(msg)
         for name in w.families:
             _check_family(name)
+        if w.mover_spec() is not None and not w.families:
+            raise ConfigError("worlds.movers needs worlds.families (a map declares its movers as moving_circles)")
         params = self.sim_params()  # validates robot and lidar fields
         try:
             check_ranges(self.randomize.ranges(), params)

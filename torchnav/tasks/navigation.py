@@ -23,7 +23,7 @@ from .base import BatchedTask
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
 from .rewards import resolve_weights, reward_terms
-from .sampling import place_movers, place_random_objects, sample_goals, sample_starts
+from .sampling import MoverSource, place_movers, place_random_objects, sample_goals, sample_starts
 
 
 @tensorclass
@@ -73,8 +73,10 @@ class NavTask(BatchedTask):
         self.delay_steps = max_delay(self.randomized)
         # The largest robot the episode may draw decides how much room a start needs.
         self.max_radius = max(cfg.robot.radius, self.randomized.get("robot_radius", (0.0, 0.0))[1])
-        # Moving discs of the map (placed at every reset); procedural worlds have none.
-        self.n_movers = self.spec.moving_circles.count if self.spec is not None and self.spec.moving_circles else 0
+        # Moving discs placed at every reset: the map's moving_circles, or worlds.movers in every generated world.
+        self.world_movers = cfg.worlds.mover_spec() if self.families else None
+        movers = self.world_movers if self.families else self.spec.moving_circles
+        self.n_movers = movers.count if movers else 0
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)
         self.n_sectors = cfg.lidar.n_sectors
@@ -156,7 +158,7 @@ class NavTask(BatchedTask):
         c, rc = self.cfg, self.cfg.reset
         n = idx.shape[0]
         if self.families:
-            world, start, goal, family, difficulty = self._generated(n, cur, gen)
+            world, start, goal, family, difficulty, bounds = self._generated(n, cur, gen)
         else:
             world = self.base_world[idx]
             start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, gen)
@@ -169,7 +171,9 @@ class NavTask(BatchedTask):
             difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
         movers = None
         if self.n_movers:
-            movers = place_movers(world, self.spec, start[:, :2], goal, rc.candidates, gen,
+            # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
+            where = self.spec if not self.families else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
+            movers = place_movers(world, where, start[:, :2], goal, rc.candidates, gen,
                                   start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
         if self.randomized:
             env_params = sample_env_params(self.randomized, self.params, n, gen, start)
@@ -189,14 +193,14 @@ class NavTask(BatchedTask):
             family=family, difficulty=difficulty, env_params=env_params, batch_size=[n], device=self.device,
         )
 
-    def _generated(self, n: int, cur: CurriculumState, gen: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor]:
+    def _generated(self, n: int, cur: CurriculumState, gen: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor]:
         """``n`` procedural episodes: padded worlds, starts ``(n, 3)``, goals ``(n, 2)``, family
-        indices ``(n,)`` and difficulties ``(n,)``, each family at its curriculum difficulty."""
+        indices ``(n,)``, difficulties ``(n,)`` and bounds ``(n, 4)``, each family at its curriculum difficulty."""
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
         batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, gen, self.device, self.dtype, self.cfg.robot.radius,
                            self.cfg.worlds.anywhere_goals, self.cfg.worlds.below_level)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
-        return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty
+        return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty, batch.bounds
 
     def initial_state(self, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
         """Fresh episodes in every env."""

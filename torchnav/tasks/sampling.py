@@ -19,7 +19,7 @@ import torch
 from torch import Tensor
 
 from ..maps import MapSpec
-from ..maps.spec import RandomCircles
+from ..maps.spec import MovingCircles, RandomCircles
 from ..sim import World, pad_world, points_clearance
 from ..sim.movers import PATROL, PEDESTRIAN, Movers
 
@@ -206,8 +206,17 @@ class _MoverPlacement:
     random_boxes: None = None
 
 
+@dataclass(frozen=True)
+class MoverSource:
+    """What :func:`place_movers` reads of a map, for movers that are not a map's: the procedural
+    worlds' ``worlds.movers`` inside each env's bounds (each edge a tensor broadcasting to ``(n, 1, 1)``)."""
+
+    moving_circles: MovingCircles
+    bounds: tuple
+
+
 def place_movers(
-    world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator,
+    world: World, spec: MapSpec | MoverSource, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> Movers:
     """The map's ``moving_circles`` for a batch ``n`` of episodes (``movers (n, M, 9)``, ``mask (n, M)``, ``plan``).
@@ -230,8 +239,8 @@ def place_movers(
     heading = _uniform((n, mc.count), -math.pi, math.pi, gen, like)
     speed = _uniform((n, mc.count), mc.speed[0], mc.speed[1], gen, like)
     box = (-math.inf, -math.inf, math.inf, math.inf) if mc.motion == "constant" else region
-    rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3],
-                      torch.tensor(box, dtype=like.dtype, device=like.device).expand(n, mc.count, 4)), -1)
+    box = torch.stack([torch.as_tensor(e, dtype=like.dtype, device=like.device).reshape(-1, 1).expand(n, mc.count) for e in box], -1)
+    rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3], box), -1)
     plan = like.new_zeros(n, mc.count, 0)
     if mc.motion in ("patrol", "pedestrian"):
         p, r = mc.waypoints, disc[..., 2:3]
