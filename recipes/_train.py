@@ -4,8 +4,8 @@ evaluation, checkpoints, Ctrl-C/SIGTERM, final evaluation and MCAP episodes.
 A recipe builds its networks and loss, then hands ``Trainer.train`` three things:
 a collector, an ``update(batch) -> {name: loss}`` function, and an ``algo_state()``
 function returning what its checkpoint needs beyond the env, RNG and counters.
-What differs between tasks (env, evaluation, recording) lives in a task adapter
-(``NavTask`` here; the line-following recipes pass their own).
+What differs between tasks (env, evaluation, recording, progress fields) is the task
+protocol's (``torchnav.protocol``): ``task="nav"`` or ``task="line"`` picks it.
 """
 
 from __future__ import annotations
@@ -13,162 +13,25 @@ from __future__ import annotations
 import collections
 import sys
 import time
-from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDictBase
 from tqdm import tqdm
 
 import _common as C
 
-from torchnav.config import merge
-
-from torchnav.envs import NavEnv
-from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED, eval_config, format_summary, record_with, run_episodes, summarize
-from torchnav.record import EpisodeRecorder
+from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED
 from torchnav.policy import Actor, policy_payload, save_policy, to_policy
 
 
 RECENT_EPISODES = 500  # training episodes behind the train/<outcome>_rate figures of the progress bar and logs
 
 
-def record_episodes_with(task, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any]) -> Any:
-    """``torchnav.evaluation.record_with`` on ``task.eval_env(episodes, ...)``."""
-    return record_with(policy, task.eval_env(episodes, device, seed), make_recorder)
-
-
-class NavAdapter:
-    """The lidar navigation task: env, goals-anywhere evaluation, recording, progress fields."""
-
-    name = "nav"
-    outcome_keys = ("success", "collision")  # flags read from the next state of finished training episodes
-
-    def __init__(self, config, anywhere: bool = True, compile_step: bool = False) -> None:
-        self.config, self.compile_step = config, bool(compile_step)
-        self.eval_config = eval_config(config, anywhere=anywhere)
-
-    @classmethod
-    def from_recipe(cls, cfg) -> "NavAdapter":
-        compile_step = cfg.env.get("compile_step", False)  # checked by C.validate
-        config = C.nav_config(cfg)
-        if not config.worlds.families:
-            from torchnav.maps import load_map
-
-            load_map(config.map)  # an unknown or malformed map is named now, before the run directory exists
-        return cls(config, compile_step=compile_step)
-
-    def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
-        return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed, compile_step=self.compile_step)
-
-    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
-        s = summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress))
-        s["score"] = s["success"]["rate"]  # the rate compared with eval.target_success
-        return s
-
-    def describe(self, s: dict[str, Any]) -> str:
-        return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("success", "collision", "timeout"))
-
-    def where(self) -> str:
-        w = self.eval_config.worlds
-        return f"worlds {'+'.join(w.families)} at difficulty {w.difficulty:g}" if w.families else self.config.map
-
-    def format(self, s: dict[str, Any], title: str | None = None) -> str:
-        return format_summary(s, title=title or f"final evaluation on {self.where()}, goals anywhere, deterministic policy")
-
-    def eval_env(self, num_envs: int, device, seed: int) -> NavEnv:
-        return NavEnv(self.eval_config, num_envs=num_envs, device=device, seed=seed)
-
-    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
-        return record_episodes_with(self, policy, episodes, seed, device, lambda env: EpisodeRecorder(
-            path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1))
-
-    def status(self, env) -> str:
-        if self.config.worlds.families:
-            return "difficulty " + "/".join(f"{d:.2f}" for d in env.curriculum.difficulty.tolist())
-        return f"radius {env.curriculum.radius.item():.2f}m"
-
-    def scalars(self, env) -> dict[str, float]:
-        out = {"curriculum/radius": env.curriculum.radius.item()}
-        for name, d, rate in zip(self.config.worlds.families, env.curriculum.difficulty.tolist(), env.curriculum.family_success.tolist()):
-            out[f"curriculum/difficulty/{name}"] = d
-            out[f"curriculum/success/{name}"] = rate
-        return out
-
-    def task_config(self) -> dict[str, Any]:
-        return C.to_dict(self.config)
-
-    def info(self) -> dict[str, Any]:
-        return {"map": self.where()}
-
-
-class LineAdapter:
-    """The line-following task: env, lap-completion evaluation from random starts, recording."""
-
-    name = "line"
-    outcome_keys = ("left_line", "stalled")
-
-    def __init__(self, config, laps: int = 1) -> None:
-        self.config, self.laps = config, int(laps)
-
-    @classmethod
-    def from_recipe(cls, cfg) -> "LineAdapter":
-        from torchnav.tasks import LineConfig
-
-        d = merge(OmegaConf.to_container(cfg.task, resolve=True), {k: v for k, v in OmegaConf.to_container(cfg.env).items() if k != "num_envs"})
-        d = merge(d, {"reward": OmegaConf.to_container(cfg.reward, resolve=True)})
-        config = LineConfig.from_dict(d, where="config")
-        from torchnav.tracks import load_track
-
-        load_track(config.track)  # an unknown or malformed track is named now, before the run directory exists
-        return cls(config, laps=cfg.eval.laps)
-
-    def make_env(self, num_envs: int, device, seed: int):
-        from torchnav.envs import LineEnv
-
-        return LineEnv(self.config, num_envs=num_envs, device=device, seed=seed)
-
-    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
-        from torchnav.line_evaluation import run_line_episodes, summarize_laps
-
-        s = summarize_laps(run_line_episodes(policy, self.config, episodes, seed=seed, laps=self.laps, device=device, progress=progress),
-                           dt=self.config.robot.dt)
-        s["score"] = s["lap_complete"]["rate"]
-        return s
-
-    def describe(self, s: dict[str, Any]) -> str:
-        return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("lap_complete", "left_line", "stalled", "timeout"))
-
-    def format(self, s: dict[str, Any], title: str | None = None) -> str:
-        from torchnav.line_evaluation import format_lap_summary
-
-        return format_lap_summary(s, title=title or f"final evaluation on {self.config.track}: {self.laps} lap(s) from random starts, deterministic policy")
-
-    def eval_env(self, num_envs: int, device, seed: int):
-        return self.make_env(num_envs, device, seed)
-
-    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
-        return record_episodes_with(self, policy, episodes, seed, device, lambda env: EpisodeRecorder(
-            path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1))
-
-    def status(self, env) -> str:
-        return ""
-
-    def scalars(self, env) -> dict[str, float]:
-        return {}
-
-    def task_config(self) -> dict[str, Any]:
-        return C.to_dict(self.config)
-
-    def info(self) -> dict[str, Any]:
-        return {"track": self.config.track}
-
-
 class Trainer:
     """Setup and loop of one recipe run; see the module docstring."""
 
-    def __init__(self, name: str, argv: list[str], ckpt_format: str, adapter: type = NavAdapter, action_mode: str | None = None) -> None:
+    def __init__(self, name: str, argv: list[str], ckpt_format: str, task: str = "nav", action_mode: str | None = None) -> None:
         self.name, self.ckpt_format = name, ckpt_format
         cfg = C.load_config(name, argv)
         resume_dir = C.find_resume_dir(cfg, name)
@@ -189,7 +52,7 @@ class Trainer:
         self.threads = C.ThreadGovernor(cfg.threads)
         C.seed_everything(cfg.seed)
         self.device = torch.device(cfg.device)
-        self.task = adapter.from_recipe(cfg)
+        self.task = C.task_protocol(cfg, task)
         if action_mode is not None and self.task.config.action.mode != action_mode:
             raise C.ConfigError(f"{name} needs task.action.mode={action_mode}, got {self.task.config.action.mode!r}")
         self.run = C.make_run_dir(cfg, name, resuming=resume_dir is not None)

@@ -27,14 +27,14 @@ from torchrl.objectives import DQNLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import LineAdapter, Trainer, replay_update  # noqa: E402
+from _train import Trainer, replay_update  # noqa: E402
 from ppo_lidar import observation_stats  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", adapter=LineAdapter, action_mode="discrete")
+    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", task="line", action_mode="discrete")
     tc, env, device = t.cfg.train, t.env, t.device
     table = torch.tensor(t.task.config.action.discrete_set, dtype=torch.float32)
 

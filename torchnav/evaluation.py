@@ -185,39 +185,50 @@ def bind_policy(policy: Any, env: Any) -> None:
         bind(env)
 
 
-def summarize(res: dict[str, torch.Tensor]) -> dict[str, Any]:
-    """Rates with Wilson intervals; mean steps to goal (successful episodes) and path-length
-    ratio (path / straight line, successful episodes) with normal intervals."""
-    n = res["success"].numel()
+def summarize_outcomes(res: dict[str, torch.Tensor], outcomes: Sequence[str], means: Mapping[str, torch.Tensor]) -> dict[str, Any]:
+    """The summary of any task's evaluation: the rate of each bool outcome of ``res`` with its
+    Wilson interval and count, and the mean of each ``means`` sample with a normal interval."""
+    n = res[outcomes[0]].numel()
     out: dict[str, Any] = {"episodes": n}
-    for k in ("success", "collision", "timeout"):
+    for k in outcomes:
         c = int(res[k].sum())
         lo, hi = wilson_interval(c, n)
         out[k] = {"rate": c / n if n else float("nan"), "ci95": [lo, hi], "count": c}
-    s = res["success"]
-    m, lo, hi = mean_interval(res["length"][s])
-    out["steps_to_goal"] = {"mean": m, "ci95": [lo, hi]}
-    ratio = res["path_length"][s] / res["straight_line"][s].clamp(min=1e-6)
-    m, lo, hi = mean_interval(ratio)
-    out["path_ratio"] = {"mean": m, "ci95": [lo, hi]}
-    m, lo, hi = mean_interval(res["return"])
-    out["return"] = {"mean": m, "ci95": [lo, hi]}
+    for k, x in means.items():
+        m, lo, hi = mean_interval(x)
+        out[k] = {"mean": m, "ci95": [lo, hi]}
     return out
+
+
+def format_table(s: dict[str, Any], title: str, outcomes: Sequence[str], means: Sequence[tuple[str, str]], width: int = 10) -> str:
+    """A small fixed-width table of :func:`summarize_outcomes` output: one row per outcome rate and
+    per ``(mean, unit)``."""
+    rows = [f"{title}  ({s['episodes']} episodes)" if title else f"{s['episodes']} episodes"]
+    for k in outcomes:
+        r = s[k]
+        rows.append(f"  {k:<14}{100 * r['rate']:6.1f} %   95% CI [{100 * r['ci95'][0]:5.1f}, {100 * r['ci95'][1]:5.1f}]")
+    for k, unit in means:
+        r = s[k]
+        rows.append(f"  {k:<14}{r['mean']:8.2f} {unit:<{width}} 95% CI [{r['ci95'][0]:.2f}, {r['ci95'][1]:.2f}]")
+    return "\n".join(rows)
+
+
+NAV_OUTCOMES = ("success", "collision", "timeout")
+
+
+def summarize(res: dict[str, torch.Tensor]) -> dict[str, Any]:
+    """Rates with Wilson intervals; mean steps to goal (successful episodes) and path-length
+    ratio (path / straight line, successful episodes) with normal intervals."""
+    s = res["success"]
+    ratio = res["path_length"][s] / res["straight_line"][s].clamp(min=1e-6)
+    return summarize_outcomes(res, NAV_OUTCOMES, {"steps_to_goal": res["length"][s], "path_ratio": ratio, "return": res["return"]})
 
 
 def format_summary(s: dict[str, Any], title: str = "") -> str:
     """A small fixed-width table of ``summarize`` output."""
-    rows = [f"{title}  ({s['episodes']} episodes)" if title else f"{s['episodes']} episodes"]
-    for k in ("success", "collision", "timeout"):
-        r = s[k]
-        rows.append(f"  {k:<14}{100 * r['rate']:6.1f} %   95% CI [{100 * r['ci95'][0]:5.1f}, {100 * r['ci95'][1]:5.1f}]")
-    for k, unit in (("steps_to_goal", "steps"), ("path_ratio", "x straight"), ("return", "")):
-        r = s[k]
-        rows.append(f"  {k:<14}{r['mean']:8.2f} {unit:<10} 95% CI [{r['ci95'][0]:.2f}, {r['ci95'][1]:.2f}]")
-    return "\n".join(rows)
+    return format_table(s, title, NAV_OUTCOMES, (("steps_to_goal", "steps"), ("path_ratio", "x straight"), ("return", "")))
 
 
-@torch.no_grad()
 def record_episodes(
     policy: Callable[[TensorDictBase], TensorDictBase],
     cfg: NavConfig,
@@ -227,7 +238,12 @@ def record_episodes(
     device: torch.device | str = "cpu",
     metadata: dict[str, Any] | None = None,
 ) -> Any:
-    """Write ``n_episodes`` episodes of the deterministic ``policy`` (one per env) to an MCAP file.
+    """Write ``n_episodes`` navigation episodes of the deterministic ``policy`` (one per env) to an MCAP file."""
+    return record_to_file(policy, NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed), path, seed, metadata)
+
+
+def record_to_file(policy: Callable[[TensorDictBase], TensorDictBase], env: Any, path, seed: int = 0, metadata: dict[str, Any] | None = None) -> Any:
+    """One deterministic episode per env of ``env`` (any task) written to the MCAP file ``path``.
 
     Returns the recorder (its ``error`` is set, and a warning was issued, if the file
     could not be written; training code can carry on).
@@ -235,8 +251,7 @@ def record_episodes(
     from .record import EpisodeRecorder
 
     meta = {"seed": seed, **(metadata or {})}
-    return record_with(policy, NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed),
-                       lambda env: EpisodeRecorder(path, env, envs=range(n_episodes), metadata=meta, episodes=1))
+    return record_with(policy, env, lambda e: EpisodeRecorder(path, e, envs=range(e.num_envs), metadata=meta, episodes=1))
 
 
 @torch.no_grad()

@@ -21,7 +21,7 @@ import torch
 from tensordict import TensorDictBase
 
 from .envs.line_env import LineEnv
-from .evaluation import mean_interval, run_batched_episodes, wilson_interval
+from .evaluation import format_table, run_batched_episodes, summarize_outcomes
 from .tasks.line_config import LineConfig
 
 OUTCOMES = ("lap_complete", "left_line", "stalled", "collision", "timeout")
@@ -75,16 +75,8 @@ def summarize_laps(res: dict[str, torch.Tensor], dt: float = 0.05) -> dict[str, 
     """Outcome rates with Wilson intervals; lap time (s, completed laps) and lap fraction (all
     episodes) with normal intervals; the fraction of driving time with no sensor on the line
     (``off_line``, ``dt`` s per step)."""
-    n = res["lap_complete"].numel()
-    out: dict[str, Any] = {"episodes": n}
-    for k in OUTCOMES:
-        c = int(res[k].sum())
-        lo, hi = wilson_interval(c, n)
-        out[k] = {"rate": c / n if n else float("nan"), "ci95": [lo, hi], "count": c}
-    ok = res["lap_complete"]
-    for k, x in (("lap_time", res["lap_time"][ok]), ("lap_fraction", res["lap_fraction"]), ("return", res["return"])):
-        m, lo, hi = mean_interval(x)
-        out[k] = {"mean": m, "ci95": [lo, hi]}
+    out = summarize_outcomes(res, OUTCOMES, {"lap_time": res["lap_time"][res["lap_complete"]], "lap_fraction": res["lap_fraction"],
+                                             "return": res["return"]})
     total = float((res["length"] * dt).sum())
     out["off_line"] = {"fraction": float(res["time_off_line"].sum()) / total if total > 0 else float("nan")}
     return out
@@ -92,12 +84,5 @@ def summarize_laps(res: dict[str, torch.Tensor], dt: float = 0.05) -> dict[str, 
 
 def format_lap_summary(s: dict[str, Any], title: str = "") -> str:
     """A small fixed-width table of :func:`summarize_laps` output."""
-    rows = [f"{title}  ({s['episodes']} episodes)" if title else f"{s['episodes']} episodes"]
-    for k in OUTCOMES:
-        r = s[k]
-        rows.append(f"  {k:<14}{100 * r['rate']:6.1f} %   95% CI [{100 * r['ci95'][0]:5.1f}, {100 * r['ci95'][1]:5.1f}]")
-    for k, unit in (("lap_time", "s"), ("lap_fraction", "laps"), ("return", "")):
-        r = s[k]
-        rows.append(f"  {k:<14}{r['mean']:8.2f} {unit:<6} 95% CI [{r['ci95'][0]:.2f}, {r['ci95'][1]:.2f}]")
-    rows.append(f"  {'off_line':<14}{100 * s['off_line']['fraction']:6.1f} %   of driving time")
-    return "\n".join(rows)
+    table = format_table(s, title, OUTCOMES, (("lap_time", "s"), ("lap_fraction", "laps"), ("return", "")), width=6)
+    return table + f"\n  {'off_line':<14}{100 * s['off_line']['fraction']:6.1f} %   of driving time"
