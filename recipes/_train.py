@@ -1,9 +1,9 @@
 """The training loop every recipe shares: setup, progress, episode statistics, periodic
 evaluation, checkpoints, Ctrl-C/SIGTERM, final evaluation and MCAP episodes.
 
-A recipe builds its networks and loss, then hands ``Trainer.train`` three things:
-a collector, an ``update(batch) -> {name: loss}`` function, and an ``algo_state()``
-function returning what its checkpoint needs beyond the env, RNG and counters.
+A recipe builds its networks and loss, names what its checkpoint holds beyond the env,
+RNG and counters (``Trainer.restore(modules)``), then hands ``Trainer.train`` a collector
+(``Trainer.collector(policy)``) and an ``update(batch) -> {name: loss}`` function.
 What differs between tasks (env, evaluation, recording, progress fields) is the task
 protocol's (``torchnav.protocol``): ``task="nav"`` or ``task="line"`` picks it.
 """
@@ -17,6 +17,7 @@ from typing import Any, Callable, Iterable
 
 import torch
 from tensordict import TensorDictBase
+from torchrl.collectors import Collector
 from tqdm import tqdm
 
 import _common as C
@@ -67,13 +68,16 @@ class Trainer:
                                          "time_to_target": None, "frames_to_target": None, "target_unix": None}
         # the deterministic actor to evaluate and save; each recipe sets this after building its networks
         self.export_actor: Callable[[], Actor] = self._no_actor
+        self.modules: dict[str, Any] = {}
 
     @property
     def fresh(self) -> bool:
         return self.ckpt is None
 
     def restore(self, modules: dict[str, Any]) -> None:
-        """Load ``{key: module_or_optimizer}`` plus env, RNG and counters from the resumed checkpoint."""
+        """``{key: module_or_optimizer}``: what checkpoints save beyond env, RNG and counters; loaded, with
+        those, from the resumed checkpoint."""
+        self.modules = modules
         if self.ckpt is None:
             return
         for k, m in modules.items():
@@ -86,14 +90,22 @@ class Trainer:
     def remaining_frames(self) -> int:
         return int(self.cfg.train.total_frames) - int(self.counters["frames"])
 
+    def collector(self, policy, random_start: bool = False) -> Collector | None:
+        """TorchRL's collector of the env over the remaining frames (None when none remain); with
+        ``random_start`` a fresh run's first ``train.init_random_frames`` frames take random actions."""
+        remaining, fpb = self.remaining_frames(), int(self.cfg.train.frames_per_batch)
+        extra = {"init_random_frames": int(self.cfg.train.init_random_frames) if self.fresh else 0} if random_start else {}
+        return Collector(self.env, policy, frames_per_batch=fpb, total_frames=max(remaining, fpb), device=self.device,
+                         auto_register_policy_transforms=False, **extra) if remaining > 0 else None
+
     def policy_meta(self, **extra: Any) -> dict[str, Any]:
         return {"task": self.task.name, "task_config": self.task.task_config(), "algorithm": self.name.split("_")[0], **extra}
 
-    def save(self, algo_state: Callable[[], dict[str, Any]], meta: dict[str, Any]) -> None:
+    def save(self, meta: dict[str, Any]) -> None:
         """``checkpoint.pt`` (everything to resume) and ``actor.pt`` (the deterministic policy), both atomic."""
         actor = self.export_actor()
         C.save_checkpoint(self.run / "checkpoint.pt", {
-            "format": self.ckpt_format, **algo_state(), "env": self.env.state_dict(), "rng": C.rng_states(),
+            "format": self.ckpt_format, **{k: m.state_dict() for k, m in self.modules.items()}, "env": self.env.state_dict(), "rng": C.rng_states(),
             "counters": dict(self.counters), "config": C.config_dict(self.cfg), "policy": policy_payload(actor, **meta),
         })
         save_policy(self.run / "actor.pt", actor, **meta)
@@ -111,9 +123,9 @@ class Trainer:
             actor.train(was_training)
 
     def train(self, collector: Iterable[TensorDictBase] | None, update: Callable[[TensorDictBase], dict[str, float]],
-              algo_state: Callable[[], dict[str, Any]], meta: dict[str, Any] | None = None,
-              on_frames: Callable[[int], None] | None = None) -> bool:
-        """Run the loop; returns True if it was stopped by a signal (a checkpoint was written either way)."""
+              meta: dict[str, Any] | None = None, on_frames: Callable[[int], None] | None = None) -> dict[str, Any]:
+        """Run the loop, then :meth:`finish`; stopped by a signal, it returns ``{"stopped": True, ...}``
+        instead (a checkpoint was written either way)."""
         cfg, c, log = self.cfg, self.counters, self.logger
         meta = meta or self.policy_meta()
         recent = collections.deque(maxlen=RECENT_EPISODES)  # outcome flags of recent training episodes
@@ -159,7 +171,7 @@ class Trainer:
                         c["time_to_target"], c["frames_to_target"], c["target_unix"] = c["wall_time"], c["frames"], time.time()
                 if c["frames"] - last_ckpt >= cfg.checkpoint.interval_frames:
                     last_ckpt = c["frames"]
-                    self.save(algo_state, meta)
+                    self.save(meta)
                 if self.threads.update() is not None:
                     bar.write(f"[threads] {self.threads.threads} (other processes use {self.threads.changes[-1][2]:.1f} of {self.threads.cores} cores)")
                 if stop.stop:
@@ -173,10 +185,11 @@ class Trainer:
             stop.restore()
             if collector is not None and hasattr(collector, "shutdown"):
                 collector.shutdown()
-            self.save(algo_state, meta)
+            self.save(meta)
         if stop.stop:
             print(f"stopped at {c['frames']:,} frames; checkpoint in {self.run / 'checkpoint.pt'}; continue with --resume={self.run}")
-        return stop.stop
+            return {"run_dir": str(self.run), "stopped": True, "counters": c}
+        return self.finish()
 
     def _episode_stats(self, flat: TensorDictBase, recent: collections.deque) -> None:
         done = flat["next", "done"].reshape(-1)

@@ -70,8 +70,7 @@ def main(argv: list[str], name: str = "apg_lidar", task: str = "nav") -> dict:
     critic_target = copy.deepcopy(critic).requires_grad_(False)
     opt_actor = torch.optim.Adam(loc_net.parameters(), lr=float(tc.lr_actor))
     opt_critic = torch.optim.Adam(critic.parameters(), lr=float(tc.lr_critic))
-    modules = {"actor": loc_net, "critic": critic, "critic_target": critic_target, "opt_actor": opt_actor, "opt_critic": opt_critic}
-    t.restore(modules)
+    t.restore({"actor": loc_net, "critic": critic, "critic_target": critic_target, "opt_actor": opt_actor, "opt_critic": opt_critic})
     t.export_actor = lambda: loc_net.squashed()
     t.counters.setdefault("skipped_updates", 0)
     term = make_smooth(t.task.name, t.cfg.smooth, env)
@@ -126,11 +125,7 @@ def main(argv: list[str], name: str = "apg_lidar", task: str = "nav") -> dict:
                 p_t.lerp_(p, tau)
         return {"actor": loss.detach(), "critic": v_loss.detach(), "grad_norm": norm.detach(), "sigma": torch.tensor(sigma())}
 
-    remaining = t.remaining_frames()
-    stopped = t.train(batches() if remaining > 0 else None, update, lambda: {k: m.state_dict() for k, m in modules.items()})
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(batches() if t.remaining_frames() > 0 else None, update)
 
 
 if __name__ == "__main__":

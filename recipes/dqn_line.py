@@ -20,7 +20,6 @@ from pathlib import Path
 
 import torch
 from tensordict.nn import TensorDictSequential
-from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, SoftUpdate
@@ -50,8 +49,7 @@ def main(argv: list[str]) -> dict:
     exploration = EGreedyModule(env.action_spec_unbatched, eps_init=float(tc.eps_init), eps_end=float(tc.eps_end),
                                 annealing_num_steps=int(tc.eps_anneal_frames), device=device)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
-    modules = {"loss": loss, "optim": optim, "exploration": exploration}
-    t.restore(modules)
+    t.restore({"loss": loss, "optim": optim, "exploration": exploration})
     t.export_actor = lambda: qnet
 
     def step(sample):
@@ -63,17 +61,8 @@ def main(argv: list[str]) -> dict:
         target_update.step()
         return {"qvalue": lv["loss"].detach(), "epsilon": exploration.eps.detach()}  # read only when logged
 
-    remaining = t.remaining_frames()
-    collector = Collector(
-        env, TensorDictSequential(qvalue, exploration), frames_per_batch=int(tc.frames_per_batch),
-        total_frames=max(remaining, int(tc.frames_per_batch)), init_random_frames=int(tc.init_random_frames) if t.fresh else 0,
-        device=device, auto_register_policy_transforms=False,
-    ) if remaining > 0 else None
-    stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()},
-                      meta=t.policy_meta(action_table=table), on_frames=exploration.step)
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(t.collector(TensorDictSequential(qvalue, exploration), random_start=True), replay_update(t, buffer, step),
+                   meta=t.policy_meta(action_table=table), on_frames=exploration.step)
 
 
 if __name__ == "__main__":

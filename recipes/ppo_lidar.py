@@ -21,7 +21,6 @@ from pathlib import Path
 import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.collectors import Collector
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
@@ -76,8 +75,7 @@ def main(argv: list[str], name: str = "ppo_lidar", task: str = "nav") -> dict:
                        critic_coeff=tc.critic_coeff, loss_critic_type="l2", normalize_advantage=True)
     gae = GAE(gamma=tc.gamma, lmbda=tc.lmbda, value_network=critic, average_gae=False)
     optim = torch.optim.Adam(loss.parameters(), lr=tc.lr, eps=1e-5)
-    modules = {"loss": loss, "optim": optim}
-    t.restore(modules)
+    t.restore({"loss": loss, "optim": optim})
     t.export_actor = lambda: loc_net.squashed()
 
     # -- update: advantages over the batch, then `epochs` passes of shuffled minibatches -------
@@ -104,13 +102,7 @@ def main(argv: list[str], name: str = "ppo_lidar", task: str = "nav") -> dict:
         out["log_std"] = params.module.log_std.detach().mean()
         return out
 
-    remaining = t.remaining_frames()
-    collector = Collector(env, policy, frames_per_batch=int(tc.frames_per_batch), total_frames=max(remaining, int(tc.frames_per_batch)),
-                          device=device, auto_register_policy_transforms=False) if remaining > 0 else None
-    stopped = t.train(collector, update, lambda: {k: m.state_dict() for k, m in modules.items()})
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(t.collector(policy), update)
 
 
 if __name__ == "__main__":
