@@ -16,8 +16,8 @@ from typing import Any, Callable
 from .config import to_dict
 from .envs import LineEnv, NavEnv
 from .envs.base import BatchedEnv
-from .evaluation import eval_config, format_summary, record_to_file, record_with, run_episodes, summarize
-from .line_evaluation import format_lap_summary, run_line_episodes, summarize_laps
+from .evaluation import (eval_config, format_lap_summary, format_summary, record_to_file, record_with, run_episodes, run_line_episodes,
+                         summarize, summarize_laps)
 from .tasks import LineConfig, NavConfig
 
 
