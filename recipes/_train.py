@@ -209,7 +209,7 @@ class Trainer:
         t0 = time.perf_counter()
         summary = self.evaluate(int(cfg.eval.final_episodes), FINAL_EVAL_SEED + int(cfg.seed))
         result = {
-            "run_dir": str(self.run), **self.task.info(), "frames": c["frames"], "updates": c["updates"],
+            "run_dir": str(self.run), self.task.place: self.task.where(), "frames": c["frames"], "updates": c["updates"],
             "train_wall_s": c["wall_time"], "time_to_target_s": c["time_to_target"],
             "frames_to_target": c["frames_to_target"], "target_unix": c["target_unix"],
             "collect_s": c["collect_s"], "update_s": c["update_s"], "periodic_eval_s": c["eval_s"],

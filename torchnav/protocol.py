@@ -27,19 +27,21 @@ class TaskProtocol:
     name = ""  # "nav" or "line": the ``task`` of a saved policy (torchnav.policy)
     place = ""  # the config key naming where the task runs: "map" or "track"
     config_class: type = object
+    env_class: type = BatchedEnv
     outcome_keys: tuple[str, ...] = ()  # flags of finished training episodes behind the train/<flag>_rate figures
     outcomes: tuple[str, ...] = ()  # evaluation outcomes shown on one line; the first one's rate is the score
 
-    def __init__(self, config: Any) -> None:
-        self.config = config
+    def __init__(self, config: Any, eval_config: Any = None, **env_options: Any) -> None:
+        self.config, self.env_options = config, env_options
+        self.eval_config = config if eval_config is None else eval_config  # the task as evaluation plays it
 
     def make_env(self, num_envs: int, device, seed: int) -> BatchedEnv:
         """The training env."""
-        raise NotImplementedError
+        return self.env_class(self.config, num_envs=num_envs, device=device, seed=seed, **self.env_options)
 
     def eval_env(self, num_envs: int, device, seed: int) -> BatchedEnv:
         """An env as evaluation plays it (one episode per env)."""
-        return self.make_env(num_envs, device, seed)
+        return self.env_class(self.eval_config, num_envs=num_envs, device=device, seed=seed)
 
     def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
         """The summary of ``episodes`` deterministic evaluation episodes, one per env."""
@@ -79,35 +81,25 @@ class TaskProtocol:
         return to_dict(self.config)
 
     def where(self) -> str:
-        """Where the task runs, for titles and ``summary.json``."""
+        """Where the task runs, for titles and ``summary.json``'s ``map``/``track``."""
         return str(getattr(self.config, self.place))
-
-    def info(self) -> dict[str, Any]:
-        return {self.place: self.where()}
 
 
 class NavProtocol(TaskProtocol):
     """Lidar navigation: evaluation with goals anywhere (``anywhere``; the curriculum off) and
     procedural worlds at a fixed difficulty; the curriculum in the progress output."""
 
-    name, place, config_class = "nav", "map", NavConfig
+    name, place, config_class, env_class = "nav", "map", NavConfig, NavEnv
     outcome_keys = ("success", "collision")
     outcomes = ("success", "collision", "timeout")
 
     def __init__(self, config: NavConfig, anywhere: bool = True, compile_step: bool = False) -> None:
-        super().__init__(config)
         if not config.worlds.families:
             from .maps import load_map
 
             load_map(config.map)  # an unknown or malformed map is named now, before any run starts
-        self.anywhere, self.compile_step = anywhere, bool(compile_step)
-        self.eval_config = eval_config(config, anywhere=anywhere)
-
-    def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
-        return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed, compile_step=self.compile_step)
-
-    def eval_env(self, num_envs: int, device, seed: int) -> NavEnv:
-        return NavEnv(self.eval_config, num_envs=num_envs, device=device, seed=seed)
+        super().__init__(config, eval_config(config, anywhere=anywhere), compile_step=bool(compile_step))
+        self.anywhere = anywhere
 
     def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
         return summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress))
@@ -136,7 +128,7 @@ class NavProtocol(TaskProtocol):
 class LineProtocol(TaskProtocol):
     """Line following: evaluation on completing ``laps`` laps from random starts."""
 
-    name, place, config_class = "line", "track", LineConfig
+    name, place, config_class, env_class = "line", "track", LineConfig, LineEnv
     outcome_keys = ("left_line", "stalled")
     outcomes = ("lap_complete", "left_line", "stalled", "timeout")
 
@@ -146,9 +138,6 @@ class LineProtocol(TaskProtocol):
 
         load_track(config.track)  # an unknown or malformed track is named now, before any run starts
         self.laps = int(laps)
-
-    def make_env(self, num_envs: int, device, seed: int) -> LineEnv:
-        return LineEnv(self.config, num_envs=num_envs, device=device, seed=seed)
 
     def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
         res = run_line_episodes(policy, self.config, episodes, seed=seed, laps=self.laps, device=device, progress=progress)
