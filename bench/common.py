@@ -74,6 +74,59 @@ def machine_info(device: str) -> dict[str, Any]:
     return info
 
 
+def print_header(title: str, device: str, log, json_bench: str | None = None) -> dict[str, Any]:
+    """``== title``, the machine's line and any load warning on ``log``; with ``json_bench`` also a JSON
+    record of the machine. Returns :func:`machine_info`."""
+    info = machine_info(device)
+    print(f"\n== {title}\n   " + ", ".join(f"{k}={v}" for k, v in info.items()), file=log)
+    warn = load_warning(device)
+    if warn:
+        print(warn, file=log)
+    if json_bench:
+        emit_json({"bench": json_bench, "device": device, **info})
+    return info
+
+
+def start(args, title: str, device: str, json_bench: str | None = None):
+    """Set ``args.threads`` torch threads and print the header (:func:`print_header`); returns the stream
+    for tables: stderr with ``--json``, whose stdout then holds only JSON lines."""
+    set_threads(args.threads)
+    log = sys.stderr if args.json else sys.stdout
+    print_header(title, device, log, json_bench if args.json else None)
+    return log
+
+
+def timing_args(p, run_seconds: float, warmup: int = 5) -> None:
+    """The timing options every throughput bench takes: ``--threads``, ``--steps``, ``--run-seconds``, ``--repeats``, ``--warmup``."""
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    p.add_argument("--steps", type=int, default=0, help="steps per timed run (default: calibrated to --run-seconds)")
+    p.add_argument("--run-seconds", type=float, default=run_seconds, help=f"target wall time of one timed run (default {run_seconds:g})")
+    p.add_argument("--repeats", type=int, default=5, help="timed runs (collector: timed batches); the median rate is reported (default 5)")
+    p.add_argument("--warmup", type=int, default=warmup, help=f"untimed steps before timing (default {warmup})")
+
+
+def free_poses(world, radius: float, half: float, edge: float, u: Callable[..., torch.Tensor], tries: int = 200) -> torch.Tensor:
+    """Poses ``(B, 3)`` in the free space of a ``[-half, half]^2`` arena, by rejection sampling all envs at
+    once: more than ``radius + 0.05`` m from every obstacle and at most ``half - edge`` m from the centre
+    along each axis. ``u(lo, hi, *shape)`` draws uniform numbers."""
+    from torchnav.sim import disc_clearance
+
+    b = world.batch_size[0]
+    pose = torch.stack((u(-half, half, b), u(-half, half, b), u(-math.pi, math.pi, b)), -1)
+    for _ in range(tries):
+        bad = (disc_clearance(pose, world, radius) <= 0.05) | (pose[:, :2].abs().amax(-1) > half - edge)
+        n = int(bad.sum())
+        if n == 0:
+            return pose
+        pose[bad] = torch.stack((u(-half, half, n), u(-half, half, n), u(-math.pi, math.pi, n)), -1)
+    raise RuntimeError("could not place every robot in free space")
+
+
+def random_twists(params, u: Callable[..., torch.Tensor], b: int, n: int = 8) -> list[torch.Tensor]:
+    """``n`` batches ``(b, 2)`` of twist commands drawn uniformly within ``params``' speed limits."""
+    return [torch.stack((u(params.v_min, params.v_max, b), u(-params.omega_max, params.omega_max, b)), -1) for _ in range(n)]
+
+
 def load_warning(device: str) -> str | None:
     """A warning line when other processes are busy on this machine, else None.
 
@@ -121,13 +174,9 @@ class Timing:
     def median(self) -> float:
         return statistics.median(self.rates)
 
-    @property
-    def min(self) -> float:
-        return min(self.rates)
-
-    @property
-    def max(self) -> float:
-        return max(self.rates)
+    def fields(self) -> dict[str, float]:
+        """:func:`rate_fields` of the runs."""
+        return rate_fields(self.rates)
 
     @property
     def call_us(self) -> float:
@@ -136,6 +185,12 @@ class Timing:
 
 
 CLOCK = time.perf_counter  # what time_calls measures: wall time by default
+
+
+def rate_fields(rates: list[float]) -> dict[str, float]:
+    """A record's ``env_steps_per_s`` (the median rate), ``env_steps_per_s_min`` and ``env_steps_per_s_max``, rounded."""
+    return {"env_steps_per_s": round(statistics.median(rates), 1), "env_steps_per_s_min": round(min(rates), 1),
+            "env_steps_per_s_max": round(max(rates), 1)}
 
 
 def time_calls(

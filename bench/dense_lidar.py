@@ -38,7 +38,7 @@ import common  # noqa: E402  (sets TORCHINDUCTOR_COMPILE_THREADS before torch is
 import torch  # noqa: E402
 from sim_throughput import make_load  # noqa: E402
 
-from torchnav.sim import LidarParams, SimParams, World, disc_clearance, init_state, make_world, planar_world, scan_is_exact, step  # noqa: E402
+from torchnav.sim import LidarParams, SimParams, World, init_state, make_world, planar_world, scan_is_exact, step  # noqa: E402
 
 HALF = 10.0  # m: the dense room spans [-10, 10] x [-10, 10]
 N_POSTS, N_BOXES = 300, 100
@@ -73,16 +73,8 @@ def make_dense(num_envs: int, params: SimParams, seed: int = 0) -> tuple[Any, Wo
         circles=posts, circle_mask=torch.ones(b, N_POSTS, dtype=torch.bool),
         boxes=boxes, box_mask=torch.ones(b, N_BOXES, dtype=torch.bool), batch_size=[b],
     )
-    pose = torch.stack((u(-h, h, b), u(-h, h, b), u(-math.pi, math.pi, b)), -1)
-    for _ in range(500):  # start poses in free space, all envs at once
-        bad = (disc_clearance(pose, world, params.robot_radius) <= 0.05) | (pose[:, :2].abs().amax(-1) > h - 0.3)
-        n = int(bad.sum())
-        if n == 0:
-            break
-        pose[bad] = torch.stack((u(-h, h, n), u(-h, h, n), u(-math.pi, math.pi, n)), -1)
-    else:
-        raise RuntimeError("could not place every robot in free space")
-    actions = [torch.stack((u(params.v_min, params.v_max, b), u(-params.omega_max, params.omega_max, b)), -1) for _ in range(8)]
+    pose = common.free_poses(world, params.robot_radius, h, 0.3, u, tries=500)
+    actions = common.random_twists(params, u, b)
     return init_state(pose, world, params), planar_world(world), actions
 
 
@@ -112,7 +104,7 @@ def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) ->
         call()
     steps = args.steps or common.calibrate(call, "cpu", args.run_seconds, lo=2, hi=10_000)
     t = common.time_calls(call, items_per_call=num_envs, steps=steps, repeats=args.repeats, warmup=0, device="cpu")
-    rec.update(env_steps_per_s=round(t.median, 1), env_steps_per_s_min=round(t.min, 1), env_steps_per_s_max=round(t.max, 1), step_ms=round(t.call_us / 1000, 3))
+    rec.update(**t.fields(), step_ms=round(t.call_us / 1000, 3))
     if load != "dense-brute":
         rec["exact_envs_frac"] = float(scan_is_exact(box["s"].pose, world, params.lidar).float().mean())
     return rec
@@ -123,11 +115,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--num-envs", type=int, default=4096)
     p.add_argument("--loads", type=lambda s: s.split(","), default=list(LOADS), help=f"comma-separated, from {','.join(LOADS)}")
     p.add_argument("--modes", type=lambda s: s.split(","), default=["eager", "compiled"], help="eager, compiled")
-    p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--steps", type=int, default=0, help="steps per timed run (default: calibrated to --run-seconds)")
-    p.add_argument("--run-seconds", type=float, default=1.0)
-    p.add_argument("--repeats", type=int, default=5)
-    p.add_argument("--warmup", type=int, default=3)
+    common.timing_args(p, run_seconds=1.0, warmup=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="also print one JSON object per line")
     p.add_argument("--quick", action="store_true", help="64 envs, eager, few steps: a smoke test")
@@ -142,13 +130,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     args = parse_args(argv)
-    common.set_threads(args.threads)
-    log = sys.stderr if args.json else sys.stdout
-    info = common.machine_info("cpu")
-    print(f"== dense_lidar: {args.num_envs} envs on cpu, " + ", ".join(f"{k}={v}" for k, v in info.items()), file=log)
-    warn = common.load_warning("cpu")
-    if warn:
-        print(warn, file=log)
+    log = common.start(args, f"dense_lidar: {args.num_envs} envs on cpu", "cpu")
     records = []
     for load in args.loads:
         for mode in args.modes:

@@ -52,7 +52,7 @@ def _record(mode: str, args: argparse.Namespace, t: common.Timing | None, mem: c
         "peak_mem_bytes": None, "peak_mem_method": None, "threads": torch.get_num_threads(),
     }
     if t is not None:
-        rec.update(env_steps_per_s=round(t.median, 1), env_steps_per_s_min=round(t.min, 1), env_steps_per_s_max=round(t.max, 1),
+        rec.update(**t.fields(),
                    step_us=round(t.call_us, 2), steps=t.steps, repeats=len(t.seconds))
     if mem is not None:
         rec.update(peak_mem_bytes=mem.bytes, peak_mem_method=mem.method)
@@ -136,7 +136,7 @@ def bench_collector(env, args: argparse.Namespace) -> dict[str, Any]:
     rates = [f / s for f, s in zip(frames, seconds)]
     rec = _record("collector", args, t, mem, frames_per_batch=fpb, batch_s=round(statistics.median(seconds), 4),
                   reset_fraction=round(done / max(1, sum(frames)), 4))
-    rec.update(env_steps_per_s=round(statistics.median(rates), 1), env_steps_per_s_min=round(min(rates), 1), env_steps_per_s_max=round(max(rates), 1),
+    rec.update(**common.rate_fields(rates),
                step_us=round(1e6 * statistics.median(seconds) / args.batch_steps, 2), steps=args.batch_steps, repeats=len(seconds),
                peak_mem_note="whole collection incl. the frames_per_batch output buffers")
     return rec
@@ -176,11 +176,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--num-envs", type=int, default=4096, help="envs in the batch (default 4096)")
     p.add_argument("--map", default="arena", help="shipped map name or YAML path (default arena)")
     p.add_argument("--device", default="cpu", help="cpu or cuda (default cpu)")
-    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
-    p.add_argument("--steps", type=int, default=0, help="steps per timed run of raw-sim and env-step (default: calibrated to --run-seconds)")
-    p.add_argument("--run-seconds", type=float, default=0.5, help="target wall time of one timed run (default 0.5)")
-    p.add_argument("--repeats", type=int, default=5, help="timed runs (collector: timed batches); the median is reported (default 5)")
-    p.add_argument("--warmup", type=int, default=5, help="untimed steps before timing (default 5)")
+    common.timing_args(p, run_seconds=0.5)
     p.add_argument("--batch-steps", type=int, default=8, help="collector frames_per_batch = num_envs * this (default 8)")
     p.add_argument("--pool", type=int, default=0, help="reset.pool of the env: episodes pre-sampled per refill (default 0: exact resets)")
     p.add_argument("--seed", type=int, default=0)
@@ -201,16 +197,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     args = parse_args(argv)
-    common.set_threads(args.threads)
-    log = sys.stderr if args.json else sys.stdout
-    info = common.machine_info(args.device)
-    print(f"\n== env_throughput: map {args.map}, {args.num_envs} envs on {args.device}", file=log)
-    print("   " + ", ".join(f"{k}={v}" for k, v in info.items()), file=log)
-    warn = common.load_warning(args.device)
-    if warn:
-        print(warn, file=log)
-    if args.json:
-        common.emit_json({"bench": "env_machine", "device": args.device, **info})
+    log = common.start(args, f"env_throughput: map {args.map}, {args.num_envs} envs on {args.device}", args.device, "env_machine")
     env = make_env(args.map, num_envs=args.num_envs, device=args.device, seed=args.seed, reset={"pool": args.pool})
     env.reset()
     records = []

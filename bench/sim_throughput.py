@@ -126,19 +126,8 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
         box_mask=torch.ones(b, N_BOXES, dtype=torch.bool),
         batch_size=[b],
     )
-    # Start poses in free space: rejection sampling, all envs at once.
-    pose = torch.stack((u(-h, h, b), u(-h, h, b), u(-math.pi, math.pi, b)), -1)
-    margin = 0.05
-    for _ in range(200):
-        bad = disc_clearance(pose, world, params.robot_radius) <= margin
-        bad |= pose[:, :2].abs().amax(-1) > h - params.robot_radius - margin
-        n = int(bad.sum())
-        if n == 0:
-            break
-        pose[bad] = torch.stack((u(-h, h, n), u(-h, h, n), u(-math.pi, math.pi, n)), -1)
-    else:
-        raise RuntimeError("could not place every robot in free space")
-    actions = [torch.stack((u(params.v_min, params.v_max, b), u(-params.omega_max, params.omega_max, b)), -1) for _ in range(8)]
+    pose = common.free_poses(world, params.robot_radius, h, params.robot_radius + 0.05, u)  # start poses in free space
+    actions = common.random_twists(params, u, b)
     world = planar_world(world.to(device))
     discs = None
     if movers:  # random discs bouncing inside the arena (they may start on a robot: the bench does not care)
@@ -248,8 +237,7 @@ def bench_rows(mode: str, num_envs: int, device: str, args: argparse.Namespace, 
                     for _ in range(3):
                         call()
                 rec.update(
-                    env_steps_per_s=round(t.median, 1), env_steps_per_s_min=round(t.min, 1), env_steps_per_s_max=round(t.max, 1),
-                    step_us=round(t.call_us, 2), steps=t.steps, peak_mem_bytes=mem.bytes, peak_mem_method=mem.method,
+                    **t.fields(), step_us=round(t.call_us, 2), steps=t.steps, peak_mem_bytes=mem.bytes, peak_mem_method=mem.method,
                 )
                 if not torch.isfinite(box["s"].pose).all():
                     rec["error"] = "non-finite pose after the timed steps"
@@ -327,11 +315,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")], default=None, help=f"comma-separated env counts (default {','.join(map(str, DEFAULT_SIZES))})")
     p.add_argument("--modes", type=lambda s: s.split(","), default=None, help=f"comma-separated, from {','.join(ALL_MODES)} (default: all; cudagraphs on CUDA only)")
     p.add_argument("--device", default="all", help="cpu, cuda, or all (cpu and, when present, cuda); default all")
-    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
-    p.add_argument("--steps", type=int, default=0, help="steps per timed run (default: calibrated to --run-seconds)")
-    p.add_argument("--run-seconds", type=float, default=0.4, help="target wall time of one timed run (default 0.4)")
-    p.add_argument("--repeats", type=int, default=5, help="timed runs per row; the median rate is reported (default 5)")
-    p.add_argument("--warmup", type=int, default=5, help="untimed steps before timing (default 5)")
+    common.timing_args(p, run_seconds=0.4)
     p.add_argument("--dynamic", action=argparse.BooleanOptionalAction, default=False, help="torch.compile(dynamic=...) (default: static shapes, one compile per size)")
     p.add_argument("--stages", action="store_true", help="also time each stage of the step (at 4096 envs or the largest size below)")
     p.add_argument("--options", type=lambda s: [x for x in s.split(",") if x], default=None,
@@ -370,14 +354,8 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     log = sys.stderr if args.json else sys.stdout  # with --json, stdout holds only JSON lines
     for device in common.resolve_devices(args.device):
         modes = [m for m in args.modes if m != "cudagraphs" or device.startswith("cuda")]
-        info = common.machine_info(device)
-        print(f"\n== sim_throughput on {device}: {LOAD}" + (" (rates in CPU time: --cpu-time)" if args.cpu_time else ""), file=log)
-        print("   " + ", ".join(f"{k}={v}" for k, v in info.items()), file=log)
-        warn = common.load_warning(device)
-        if warn:
-            print(warn, file=log)
-        if args.json:
-            common.emit_json({"bench": "sim_machine", "device": device, **info})
+        common.print_header(f"sim_throughput on {device}: {LOAD}" + (" (rates in CPU time: --cpu-time)" if args.cpu_time else ""), device, log,
+                            "sim_machine" if args.json else None)
         self_check(device)
         rows, dev_records = [], []
         for n in args.sizes:

@@ -26,7 +26,8 @@ from omegaconf.errors import ConfigAttributeError, ConfigKeyError
 
 from torchnav.checkpoint import load_checked, save_checked
 from torchnav.config import ConfigError, merge, to_dict
-from torchnav.tasks import NavConfig
+from torchnav.protocol import LineProtocol, NavProtocol, TaskProtocol
+from torchnav.tasks import LineConfig, NavConfig
 
 CONFIG_DIR = Path(__file__).resolve().parent / "configs"
 # Sections whose keys are validated by NavConfig rather than by the YAML file.
@@ -211,14 +212,29 @@ def _did_you_mean(cfg: DictConfig, key: str) -> str:
     return f" (did you mean '{parent + '.' if parent else ''}{close[0]}'?)" if close else ""
 
 
+def _section(cfg: DictConfig, name: str) -> dict[str, Any]:
+    return OmegaConf.to_container(cfg[name], resolve=True)  # type: ignore[return-value]
+
+
 def nav_config(cfg: DictConfig, **extra: Any) -> NavConfig:
     """The NavConfig described by a recipe config's ``env``, ``curriculum``, ``reward`` and ``task`` sections."""
-    d: dict[str, Any] = OmegaConf.to_container(cfg.task, resolve=True)  # type: ignore[assignment]
-    env = OmegaConf.to_container(cfg.env, resolve=True)
-    nav = {k: v for k, v in env.items() if k not in ("num_envs", "compile_step")}
-    d = merge(d, nav)
-    d = merge(d, {"curriculum": OmegaConf.to_container(cfg.curriculum, resolve=True), "reward": OmegaConf.to_container(cfg.reward, resolve=True)})
+    env = {k: v for k, v in _section(cfg, "env").items() if k not in ("num_envs", "compile_step")}
+    d = merge(merge(_section(cfg, "task"), env), {"curriculum": _section(cfg, "curriculum"), "reward": _section(cfg, "reward")})
     return NavConfig.from_dict(merge(d, extra), where="config")
+
+
+def line_config(cfg: DictConfig) -> LineConfig:
+    """The LineConfig described by a recipe config's ``env``, ``reward`` and ``task`` sections."""
+    env = {k: v for k, v in _section(cfg, "env").items() if k != "num_envs"}
+    return LineConfig.from_dict(merge(merge(_section(cfg, "task"), env), {"reward": _section(cfg, "reward")}), where="config")
+
+
+def task_protocol(cfg: DictConfig, task: str) -> TaskProtocol:
+    """The task protocol (``torchnav.protocol``) of a recipe config: ``"nav"`` or ``"line"``; an unknown
+    or malformed map or track is named now, before the run directory exists."""
+    if task == "nav":
+        return NavProtocol(nav_config(cfg), compile_step=cfg.env.get("compile_step", False))  # compile_step checked by validate
+    return LineProtocol(line_config(cfg), laps=cfg.eval.laps)
 
 
 def make_run_dir(cfg: DictConfig, name: str, resuming: bool = False) -> Path:
@@ -440,7 +456,7 @@ def main_guard(main: Callable[[list[str]], Any]) -> None:
 
 
 __all__ = [
-    "main_guard", "parse_cli", "load_config", "resumed_config", "nav_config", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
+    "main_guard", "parse_cli", "load_config", "resumed_config", "nav_config", "line_config", "task_protocol", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
     "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume_dir", "StopFlag", "ThreadGovernor", "write_json",
     "config_dict", "to_dict",
 ]

@@ -1,11 +1,11 @@
 """The training loop every recipe shares: setup, progress, episode statistics, periodic
 evaluation, checkpoints, Ctrl-C/SIGTERM, final evaluation and MCAP episodes.
 
-A recipe builds its networks and loss, then hands ``Trainer.train`` three things:
-a collector, an ``update(batch) -> {name: loss}`` function, and an ``algo_state()``
-function returning what its checkpoint needs beyond the env, RNG and counters.
-What differs between tasks (env, evaluation, recording) lives in a task adapter
-(``NavTask`` here; the line-following recipes pass their own).
+A recipe builds its networks and loss, names what its checkpoint holds beyond the env,
+RNG and counters (``Trainer.restore(modules)``), then hands ``Trainer.train`` a collector
+(``Trainer.collector(policy)``) and an ``update(batch) -> {name: loss}`` function.
+What differs between tasks (env, evaluation, recording, progress fields) is the task
+protocol's (``torchnav.protocol``): ``task="nav"`` or ``task="line"`` picks it.
 """
 
 from __future__ import annotations
@@ -13,162 +13,26 @@ from __future__ import annotations
 import collections
 import sys
 import time
-from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDict, TensorDictBase
+from torchrl.collectors import Collector
 from tqdm import tqdm
 
 import _common as C
 
-from torchnav.config import merge
-
-from torchnav.envs import NavEnv
-from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED, eval_config, format_summary, record_with, run_episodes, summarize
-from torchnav.record import EpisodeRecorder
+from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED
 from torchnav.policy import Actor, policy_payload, save_policy, to_policy
 
 
 RECENT_EPISODES = 500  # training episodes behind the train/<outcome>_rate figures of the progress bar and logs
 
 
-def record_episodes_with(task, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any]) -> Any:
-    """``torchnav.evaluation.record_with`` on ``task.eval_env(episodes, ...)``."""
-    return record_with(policy, task.eval_env(episodes, device, seed), make_recorder)
-
-
-class NavAdapter:
-    """The lidar navigation task: env, goals-anywhere evaluation, recording, progress fields."""
-
-    name = "nav"
-    outcome_keys = ("success", "collision")  # flags read from the next state of finished training episodes
-
-    def __init__(self, config, anywhere: bool = True, compile_step: bool = False) -> None:
-        self.config, self.compile_step = config, bool(compile_step)
-        self.eval_config = eval_config(config, anywhere=anywhere)
-
-    @classmethod
-    def from_recipe(cls, cfg) -> "NavAdapter":
-        compile_step = cfg.env.get("compile_step", False)  # checked by C.validate
-        config = C.nav_config(cfg)
-        if not config.worlds.families:
-            from torchnav.maps import load_map
-
-            load_map(config.map)  # an unknown or malformed map is named now, before the run directory exists
-        return cls(config, compile_step=compile_step)
-
-    def make_env(self, num_envs: int, device, seed: int) -> NavEnv:
-        return NavEnv(self.config, num_envs=num_envs, device=device, seed=seed, compile_step=self.compile_step)
-
-    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
-        s = summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress))
-        s["score"] = s["success"]["rate"]  # the rate compared with eval.target_success
-        return s
-
-    def describe(self, s: dict[str, Any]) -> str:
-        return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("success", "collision", "timeout"))
-
-    def where(self) -> str:
-        w = self.eval_config.worlds
-        return f"worlds {'+'.join(w.families)} at difficulty {w.difficulty:g}" if w.families else self.config.map
-
-    def format(self, s: dict[str, Any], title: str | None = None) -> str:
-        return format_summary(s, title=title or f"final evaluation on {self.where()}, goals anywhere, deterministic policy")
-
-    def eval_env(self, num_envs: int, device, seed: int) -> NavEnv:
-        return NavEnv(self.eval_config, num_envs=num_envs, device=device, seed=seed)
-
-    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
-        return record_episodes_with(self, policy, episodes, seed, device, lambda env: EpisodeRecorder(
-            path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1))
-
-    def status(self, env) -> str:
-        if self.config.worlds.families:
-            return "difficulty " + "/".join(f"{d:.2f}" for d in env.curriculum.difficulty.tolist())
-        return f"radius {env.curriculum.radius.item():.2f}m"
-
-    def scalars(self, env) -> dict[str, float]:
-        out = {"curriculum/radius": env.curriculum.radius.item()}
-        for name, d, rate in zip(self.config.worlds.families, env.curriculum.difficulty.tolist(), env.curriculum.family_success.tolist()):
-            out[f"curriculum/difficulty/{name}"] = d
-            out[f"curriculum/success/{name}"] = rate
-        return out
-
-    def task_config(self) -> dict[str, Any]:
-        return C.to_dict(self.config)
-
-    def info(self) -> dict[str, Any]:
-        return {"map": self.where()}
-
-
-class LineAdapter:
-    """The line-following task: env, lap-completion evaluation from random starts, recording."""
-
-    name = "line"
-    outcome_keys = ("left_line", "stalled")
-
-    def __init__(self, config, laps: int = 1) -> None:
-        self.config, self.laps = config, int(laps)
-
-    @classmethod
-    def from_recipe(cls, cfg) -> "LineAdapter":
-        from torchnav.tasks import LineConfig
-
-        d = merge(OmegaConf.to_container(cfg.task, resolve=True), {k: v for k, v in OmegaConf.to_container(cfg.env).items() if k != "num_envs"})
-        d = merge(d, {"reward": OmegaConf.to_container(cfg.reward, resolve=True)})
-        config = LineConfig.from_dict(d, where="config")
-        from torchnav.tracks import load_track
-
-        load_track(config.track)  # an unknown or malformed track is named now, before the run directory exists
-        return cls(config, laps=cfg.eval.laps)
-
-    def make_env(self, num_envs: int, device, seed: int):
-        from torchnav.envs import LineEnv
-
-        return LineEnv(self.config, num_envs=num_envs, device=device, seed=seed)
-
-    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
-        from torchnav.line_evaluation import run_line_episodes, summarize_laps
-
-        s = summarize_laps(run_line_episodes(policy, self.config, episodes, seed=seed, laps=self.laps, device=device, progress=progress),
-                           dt=self.config.robot.dt)
-        s["score"] = s["lap_complete"]["rate"]
-        return s
-
-    def describe(self, s: dict[str, Any]) -> str:
-        return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in ("lap_complete", "left_line", "stalled", "timeout"))
-
-    def format(self, s: dict[str, Any], title: str | None = None) -> str:
-        from torchnav.line_evaluation import format_lap_summary
-
-        return format_lap_summary(s, title=title or f"final evaluation on {self.config.track}: {self.laps} lap(s) from random starts, deterministic policy")
-
-    def eval_env(self, num_envs: int, device, seed: int):
-        return self.make_env(num_envs, device, seed)
-
-    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict) -> Any:
-        return record_episodes_with(self, policy, episodes, seed, device, lambda env: EpisodeRecorder(
-            path, env, envs=range(episodes), metadata={"seed": seed, **metadata}, episodes=1))
-
-    def status(self, env) -> str:
-        return ""
-
-    def scalars(self, env) -> dict[str, float]:
-        return {}
-
-    def task_config(self) -> dict[str, Any]:
-        return C.to_dict(self.config)
-
-    def info(self) -> dict[str, Any]:
-        return {"track": self.config.track}
-
-
 class Trainer:
     """Setup and loop of one recipe run; see the module docstring."""
 
-    def __init__(self, name: str, argv: list[str], ckpt_format: str, adapter: type = NavAdapter, action_mode: str | None = None) -> None:
+    def __init__(self, name: str, argv: list[str], ckpt_format: str, task: str = "nav", action_mode: str | None = None) -> None:
         self.name, self.ckpt_format = name, ckpt_format
         cfg = C.load_config(name, argv)
         resume_dir = C.find_resume_dir(cfg, name)
@@ -189,7 +53,7 @@ class Trainer:
         self.threads = C.ThreadGovernor(cfg.threads)
         C.seed_everything(cfg.seed)
         self.device = torch.device(cfg.device)
-        self.task = adapter.from_recipe(cfg)
+        self.task = C.task_protocol(cfg, task)
         if action_mode is not None and self.task.config.action.mode != action_mode:
             raise C.ConfigError(f"{name} needs task.action.mode={action_mode}, got {self.task.config.action.mode!r}")
         self.run = C.make_run_dir(cfg, name, resuming=resume_dir is not None)
@@ -204,6 +68,7 @@ class Trainer:
                                          "time_to_target": None, "frames_to_target": None, "target_unix": None}
         # the deterministic actor to evaluate and save; each recipe sets this after building its networks
         self.export_actor: Callable[[], Actor] = self._no_actor
+        self.modules: dict[str, Any] = {}
         self._collector: Any = None
 
     @property
@@ -211,7 +76,9 @@ class Trainer:
         return self.ckpt is None
 
     def restore(self, modules: dict[str, Any]) -> None:
-        """Load ``{key: module_or_optimizer}`` plus env, RNG and counters from the resumed checkpoint."""
+        """``{key: module_or_optimizer}``: what checkpoints save beyond env, RNG and counters; loaded, with
+        those, from the resumed checkpoint."""
+        self.modules = modules
         if self.ckpt is None:
             return
         for k, m in modules.items():
@@ -227,15 +94,23 @@ class Trainer:
     def remaining_frames(self) -> int:
         return int(self.cfg.train.total_frames) - int(self.counters["frames"])
 
+    def collector(self, policy, random_start: bool = False) -> Collector | None:
+        """TorchRL's collector of the env over the remaining frames (None when none remain); with
+        ``random_start`` a run's first ``train.init_random_frames`` frames take random actions."""
+        remaining, fpb = self.remaining_frames(), int(self.cfg.train.frames_per_batch)
+        extra = {"init_random_frames": max(0, int(self.cfg.train.init_random_frames) - int(self.counters["frames"]))} if random_start else {}
+        return Collector(self.env, policy, frames_per_batch=fpb, total_frames=max(remaining, fpb), device=self.device,
+                         auto_register_policy_transforms=False, **extra) if remaining > 0 else None
+
     def policy_meta(self, **extra: Any) -> dict[str, Any]:
         return {"task": self.task.name, "task_config": self.task.task_config(), "algorithm": self.name.split("_")[0], **extra}
 
-    def save(self, algo_state: Callable[[], dict[str, Any]], meta: dict[str, Any]) -> None:
+    def save(self, meta: dict[str, Any]) -> None:
         """``checkpoint.pt`` (everything to resume) and ``actor.pt`` (the deterministic policy), both atomic."""
         actor = self.export_actor()
         carrier = getattr(self._collector, "_carrier", None)  # the collector's current step (TorchRL keeps it private)
         C.save_checkpoint(self.run / "checkpoint.pt", {
-            "format": self.ckpt_format, **algo_state(), "env": self.env.state_dict(), "rng": C.rng_states(),
+            "format": self.ckpt_format, **{k: m.state_dict() for k, m in self.modules.items()}, "env": self.env.state_dict(), "rng": C.rng_states(),
             **({"carrier": carrier.clone().to_dict()} if carrier is not None else {}),
             "counters": dict(self.counters), "config": C.config_dict(self.cfg), "policy": policy_payload(actor, **meta),
         })
@@ -254,9 +129,9 @@ class Trainer:
             actor.train(was_training)
 
     def train(self, collector: Iterable[TensorDictBase] | None, update: Callable[[TensorDictBase], dict[str, float]],
-              algo_state: Callable[[], dict[str, Any]], meta: dict[str, Any] | None = None,
-              on_frames: Callable[[int], None] | None = None) -> bool:
-        """Run the loop; returns True if it was stopped by a signal (a checkpoint was written either way)."""
+              meta: dict[str, Any] | None = None, on_frames: Callable[[int], None] | None = None) -> dict[str, Any]:
+        """Run the loop, then :meth:`finish`; stopped by a signal, it returns ``{"stopped": True, ...}``
+        instead (a checkpoint was written either way)."""
         cfg, c, log = self.cfg, self.counters, self.logger
         meta = meta or self.policy_meta()
         self._collector = collector
@@ -311,7 +186,7 @@ class Trainer:
                         c["time_to_target"], c["frames_to_target"], c["target_unix"] = c["wall_time"], c["frames"], time.time()
                 if every(cfg.checkpoint.interval_frames) > last_ckpt:
                     last_ckpt = every(cfg.checkpoint.interval_frames)
-                    self.save(algo_state, meta)
+                    self.save(meta)
                 if self.threads.update() is not None:
                     bar.write(f"[threads] {self.threads.threads} (other processes use {self.threads.changes[-1][2]:.1f} of {self.threads.cores} cores)")
                 if stop.stop:
@@ -323,12 +198,13 @@ class Trainer:
         finally:
             bar.close()
             stop.restore()
-            self.save(algo_state, meta)  # before shutdown, which drops the collector's current step
+            self.save(meta)  # before shutdown, which drops the collector's current step
             if collector is not None and hasattr(collector, "shutdown"):
                 collector.shutdown()
         if stop.stop:
             print(f"stopped at {c['frames']:,} frames; checkpoint in {self.run / 'checkpoint.pt'}; continue with --resume={self.run}")
-        return stop.stop
+            return {"run_dir": str(self.run), "stopped": True, "counters": c}
+        return self.finish()
 
     def _episode_stats(self, flat: TensorDictBase, recent: collections.deque) -> None:
         done = flat["next", "done"].reshape(-1)
@@ -348,7 +224,7 @@ class Trainer:
         t0 = time.perf_counter()
         summary = self.evaluate(int(cfg.eval.final_episodes), FINAL_EVAL_SEED + int(cfg.seed))
         result = {
-            "run_dir": str(self.run), **self.task.info(), "frames": c["frames"], "updates": c["updates"],
+            "run_dir": str(self.run), self.task.place: self.task.where(), "frames": c["frames"], "updates": c["updates"],
             "train_wall_s": c["wall_time"], "time_to_target_s": c["time_to_target"],
             "frames_to_target": c["frames_to_target"], "target_unix": c["target_unix"],
             "collect_s": c["collect_s"], "update_s": c["update_s"], "periodic_eval_s": c["eval_s"],

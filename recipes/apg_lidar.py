@@ -28,7 +28,8 @@ penalty ramping up as the robot's clearance falls below ``smooth.contact_margin`
 to the reward the actor and critic see, its weight ramped in over
 ``smooth.ramp_frames`` (at full weight from the start, or with the `proximity` term
 on, the first updates learned to stand still). Exploration is Gaussian noise before the
-``tanh`` (reparameterised, so it does not block the gradient). The shared loop in
+``tanh`` (reparameterised, so it does not block the gradient). ``torchnav.apg`` holds the
+horizon's rollout, its loss, the TD(lambda) targets and the smoothed terms. The shared loop in
 ``recipes/_train.py`` does progress output, periodic evaluation, checkpoints, the
 final evaluation and MCAP episodes; the saved ``actor.pt`` is ``tanh`` of the
 policy network, like PPO's. Every config key is documented in
@@ -42,7 +43,7 @@ import copy
 import math
 import sys
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Iterator
 
 import torch
 from tensordict import TensorDict
@@ -50,89 +51,15 @@ from torch import Tensor
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import NavAdapter, Trainer  # noqa: E402
+from _train import Trainer  # noqa: E402
 
+from torchnav.apg import horizon_loss, lambda_returns, make_smooth, rollout  # noqa: E402,F401  (tests/test_apg.py reads them here)
 from torchnav.policy import Actor  # noqa: E402
 
 
-# -- smoothed terms: differentiable stand-ins for the task's terminal events ---------------------
-
-def nav_smooth(smooth, state) -> Tensor:
-    """``smooth.contact * relu(1 - clearance / smooth.contact_margin)``: 0 with ``contact_margin`` m
-    of clearance or more, ``smooth.contact`` at contact, growing further when penetrating."""
-    return float(smooth.contact) * torch.relu(1.0 - state.sim.clearance / float(smooth.contact_margin))
-
-
-def make_smooth(task_name: str, smooth, env) -> Callable[[Any], Tensor]:
-    """The differentiable reward term ``state -> (B,)`` of a task, from the config's ``smooth`` section."""
-    if task_name == "nav":
-        return lambda state: nav_smooth(smooth, state)
-    if task_name == "line":  # smooth.path * (distance from the lap path / the distance that ends the episode)^2
-        limit = float(env.cfg.termination.max_path_distance)
-        return lambda state: float(smooth.path) * (state.path_dist / limit).square()
-    raise C.ConfigError(f"apg: no smoothed terms for task {task_name!r}")
-
-
-# -- one horizon of the differentiable rollout -------------------------------------------------
-
-def rollout(env, loc_net: Actor, value: Actor, smooth: Callable[[Any], Tensor], horizon: int, gamma: float, sigma: float,
-            outcome_keys: tuple[str, ...]) -> TensorDict:
-    """``horizon`` steps of every env with the autograd graph kept; returns a ``(N, horizon)`` batch.
-
-    ``"apg"`` holds each step's share of the differentiable objective
-    ``gamma^k r_t (+ gamma^(k+1) V(s_{t+1})`` at a horizon end or truncation), ``k`` counting
-    from the horizon start or the episode start if later; ``"observation"``, ``"reward"``
-    and ``"bootstrap"`` (``V`` of the next state, 0 after a terminal event) are detached,
-    for the critic; ``"next"`` holds ``done``, ``terminated``, the task's outcome flags and
-    the finished episodes' ``episode`` statistics, as a collector's batch would (for the
-    shared loop's statistics). The env state is detached at the end.
-    """
-    n = env.num_envs
-    obs = env.observation()
-    disc = obs.new_ones(n)
-    steps: list[dict[str, Tensor]] = []
-    for t in range(horizon):
-        loc = loc_net(obs)
-        action = torch.tanh(loc + sigma * torch.randn_like(loc))
-        last, out = env.advance(action)
-        reward = out["reward"] + smooth(last)
-        terminated, done = out["terminated"], out["terminated"] | out["truncated"]
-        v_next = value(out["observation"])[:, 0]
-        boot = torch.where(terminated, torch.zeros_like(v_next), v_next)
-        end = done if t < horizon - 1 else torch.ones_like(done)
-        apg = disc * (reward + gamma * boot * end.to(boot.dtype))
-        steps.append({
-            "apg": apg, "observation": obs.detach(), "reward": reward.detach(), "bootstrap": boot.detach(),
-            "next": {"done": done[:, None], "terminated": terminated[:, None], **{k: out[k][:, None] for k in outcome_keys},
-                     "episode": {"return": last.ep_return.detach()[:, None], "length": last.steps.to(obs.dtype)[:, None]}},
-        })
-        disc = torch.where(done, torch.ones_like(disc), disc * gamma)
-        obs = env.observation()
-    env.detach_state()
-    return TensorDict.stack([TensorDict(s, batch_size=[n]) for s in steps], dim=1)
-
-
-def lambda_returns(reward: Tensor, bootstrap: Tensor, done: Tensor, gamma: float, lmbda: float) -> Tensor:
-    """TD(lambda) targets ``(N, H)`` from rewards, bootstrap values of the next states (0 after a
-    terminal event) and done flags, all ``(N, H)``; the last step bootstraps fully."""
-    out = torch.empty_like(reward)
-    g = bootstrap[:, -1]
-    for t in reversed(range(reward.shape[1])):
-        if t < reward.shape[1] - 1:
-            g = torch.where(done[:, t], bootstrap[:, t], (1 - lmbda) * bootstrap[:, t] + lmbda * g)
-        g = reward[:, t] + gamma * g
-        out[:, t] = g
-    return out
-
-
-def horizon_loss(batch: TensorDict) -> Tensor:
-    """The actor loss of a horizon: minus the differentiable objective per env step."""
-    return -batch["apg"].sum() / batch.numel()
-
-
-def main(argv: list[str], name: str = "apg_lidar", adapter: type = NavAdapter) -> dict:
-    """Train; ``name`` picks ``configs/<name>.yaml`` and ``adapter`` the task (``apg_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", adapter=adapter, action_mode="continuous")
+def main(argv: list[str], name: str = "apg_lidar", task: str = "nav") -> dict:
+    """Train; ``name`` picks ``configs/<name>.yaml`` and ``task`` the task protocol (``apg_line.py`` reuses this)."""
+    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", task=task, action_mode="continuous")
     tc, env, device = t.cfg.train, t.env, t.device
     horizon, gamma, lmbda, tau = int(tc.horizon), float(tc.gamma), float(tc.lmbda), float(tc.tau)
 
@@ -143,8 +70,7 @@ def main(argv: list[str], name: str = "apg_lidar", adapter: type = NavAdapter) -
     critic_target = copy.deepcopy(critic).requires_grad_(False)
     opt_actor = torch.optim.Adam(loc_net.parameters(), lr=float(tc.lr_actor))
     opt_critic = torch.optim.Adam(critic.parameters(), lr=float(tc.lr_critic))
-    modules = {"actor": loc_net, "critic": critic, "critic_target": critic_target, "opt_actor": opt_actor, "opt_critic": opt_critic}
-    t.restore(modules)
+    t.restore({"actor": loc_net, "critic": critic, "critic_target": critic_target, "opt_actor": opt_actor, "opt_critic": opt_critic})
     t.export_actor = lambda: loc_net.squashed()
     t.counters.setdefault("skipped_updates", 0)
     term = make_smooth(t.task.name, t.cfg.smooth, env)
@@ -200,11 +126,7 @@ def main(argv: list[str], name: str = "apg_lidar", adapter: type = NavAdapter) -
                 p_t.lerp_(p, tau)
         return {"actor": loss.detach(), "critic": v_loss.detach(), "grad_norm": norm.detach(), "sigma": torch.tensor(sigma())}
 
-    remaining = t.remaining_frames()
-    stopped = t.train(batches() if remaining > 0 else None, update, lambda: {k: m.state_dict() for k, m in modules.items()})
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(batches() if t.remaining_frames() > 0 else None, update)
 
 
 if __name__ == "__main__":

@@ -21,11 +21,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import apg_lidar  # noqa: E402
 import _common as C  # noqa: E402
-from _train import LineAdapter  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    return apg_lidar.main(argv, name="apg_line", adapter=LineAdapter)
+    return apg_lidar.main(argv, name="apg_line", task="line")
 
 
 if __name__ == "__main__":

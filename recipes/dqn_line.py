@@ -20,21 +20,20 @@ from pathlib import Path
 
 import torch
 from tensordict.nn import TensorDictSequential
-from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import EGreedyModule, QValueActor
 from torchrl.objectives import DQNLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import LineAdapter, ReplayState, Trainer, replay_update  # noqa: E402
+from _train import ReplayState, Trainer, replay_update  # noqa: E402
 from ppo_lidar import observation_stats  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", adapter=LineAdapter, action_mode="discrete")
+    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", task="line", action_mode="discrete")
     tc, env, device = t.cfg.train, t.env, t.device
     table = torch.tensor(t.task.config.action.discrete_set, dtype=torch.float32)
 
@@ -50,9 +49,7 @@ def main(argv: list[str]) -> dict:
     exploration = EGreedyModule(env.action_spec_unbatched, eps_init=float(tc.eps_init), eps_end=float(tc.eps_end),
                                 annealing_num_steps=int(tc.eps_anneal_frames), device=device)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
-    modules = {"loss": loss, "optim": optim, "exploration": exploration}
-    modules["replay"] = ReplayState(buffer)  # checkpointed too: a resumed run samples the same transitions
-    t.restore(modules)
+    t.restore({"loss": loss, "optim": optim, "exploration": exploration, "replay": ReplayState(buffer)})
     t.export_actor = lambda: qnet
 
     def step(sample):
@@ -64,17 +61,8 @@ def main(argv: list[str]) -> dict:
         target_update.step()
         return {"qvalue": lv["loss"].detach(), "epsilon": exploration.eps.detach()}  # read only when logged
 
-    remaining = t.remaining_frames()
-    collector = Collector(
-        env, TensorDictSequential(qvalue, exploration), frames_per_batch=int(tc.frames_per_batch),
-        total_frames=max(remaining, int(tc.frames_per_batch)), init_random_frames=max(0, int(tc.init_random_frames) - int(t.counters["frames"])),
-        device=device, auto_register_policy_transforms=False,
-    ) if remaining > 0 else None
-    stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()},
-                      meta=t.policy_meta(action_table=table), on_frames=exploration.step)
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(t.collector(TensorDictSequential(qvalue, exploration), random_start=True), replay_update(t, buffer, step),
+                   meta=t.policy_meta(action_table=table), on_frames=exploration.step)
 
 
 if __name__ == "__main__":

@@ -23,12 +23,11 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import LineAdapter, NavAdapter  # noqa: E402
 
 from torchnav.config import merge  # noqa: E402
 from torchnav.evaluation import FINAL_EVAL_SEED  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
-from torchnav.tasks import LineConfig, NavConfig  # noqa: E402
+from torchnav.protocol import PROTOCOLS  # noqa: E402
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "td3_arena_actor.pt"
 
@@ -87,15 +86,13 @@ def main(argv: list[str]) -> dict:
         for part in parts[:-1]:
             node = node.setdefault(part, {})
         node[parts[-1]] = yaml.safe_load(v)
+    P = PROTOCOLS[sp.task]
+    config = P.config_class.from_dict(merge(sp.task_config, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
+    task = P(config, anywhere=not a.curriculum) if sp.task == "nav" else P(config, laps=a.laps)
+    where = getattr(config, P.place)
     if sp.task == "nav":
-        task = NavAdapter(NavConfig.from_dict(merge(sp.task_config, {**over, **({"map": a.map} if a.map else {})}), where="--set"),
-                          anywhere=not a.curriculum)
-        where = task.eval_config.map
         title = f"{ckpt.name} on {where}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
     else:
-        task = LineAdapter(LineConfig.from_dict(merge(sp.task_config, {**over, **({"track": a.map} if a.map else {})}), where="--set"),
-                           laps=a.laps)
-        where = task.config.track
         title = f"{ckpt.name} on {where}, {a.laps} lap(s) from random starts, seed {a.seed}"
     res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating")
     print(task.format(res, title=title))
@@ -109,8 +106,6 @@ def main(argv: list[str]) -> dict:
         rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where})
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
     if a.live is not None:
-        from _train import record_episodes_with
-
         from torchnav.record import LiveView
 
         def live_view(env):
@@ -119,7 +114,7 @@ def main(argv: list[str]) -> dict:
                   "layout docs/foxglove_layout.json); Ctrl-C stops", flush=True)
             return view
 
-        record_episodes_with(task, actor, a.live_episodes, a.seed, a.device, live_view)
+        task.record_with(actor, a.live_episodes, a.seed, a.device, live_view)
     return out
 
 

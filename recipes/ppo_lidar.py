@@ -21,14 +21,13 @@ from pathlib import Path
 import torch
 from tensordict.nn import TensorDictModule
 from torch import nn
-from torchrl.collectors import Collector
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
-from _train import NavAdapter, Trainer  # noqa: E402
+from _train import Trainer  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -54,9 +53,9 @@ def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
     return obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
 
 
-def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -> dict:
-    """Train; ``name`` picks ``configs/<name>.yaml`` and ``adapter`` the task (``ppo_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", adapter=adapter, action_mode="continuous")
+def main(argv: list[str], name: str = "ppo_lidar", task: str = "nav") -> dict:
+    """Train; ``name`` picks ``configs/<name>.yaml`` and ``task`` the task protocol (``ppo_line.py`` reuses this)."""
+    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", task=task, action_mode="continuous")
     tc, env, device = t.cfg.train, t.env, t.device
 
     # -- networks: both normalise observations with statistics of a random-action rollout -----
@@ -76,8 +75,7 @@ def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -
                        critic_coeff=tc.critic_coeff, loss_critic_type="l2", normalize_advantage=True)
     gae = GAE(gamma=tc.gamma, lmbda=tc.lmbda, value_network=critic, average_gae=False)
     optim = torch.optim.Adam(loss.parameters(), lr=tc.lr, eps=1e-5)
-    modules = {"loss": loss, "optim": optim}
-    t.restore(modules)
+    t.restore({"loss": loss, "optim": optim})
     t.export_actor = lambda: loc_net.squashed()
 
     # -- update: advantages over the batch, then `epochs` passes of shuffled minibatches -------
@@ -104,13 +102,7 @@ def main(argv: list[str], name: str = "ppo_lidar", adapter: type = NavAdapter) -
         out["log_std"] = params.module.log_std.detach().mean()
         return out
 
-    remaining = t.remaining_frames()
-    collector = Collector(env, policy, frames_per_batch=int(tc.frames_per_batch), total_frames=max(remaining, int(tc.frames_per_batch)),
-                          device=device, auto_register_policy_transforms=False) if remaining > 0 else None
-    stopped = t.train(collector, update, lambda: {k: m.state_dict() for k, m in modules.items()})
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(t.collector(policy), update)
 
 
 if __name__ == "__main__":

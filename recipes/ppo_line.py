@@ -18,11 +18,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ppo_lidar  # noqa: E402
 import _common as C  # noqa: E402
-from _train import LineAdapter  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    return ppo_lidar.main(argv, name="ppo_line", adapter=LineAdapter)
+    return ppo_lidar.main(argv, name="ppo_line", task="line")
 
 
 if __name__ == "__main__":

@@ -20,7 +20,6 @@ from pathlib import Path
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
-from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
@@ -58,9 +57,7 @@ def main(argv: list[str]) -> dict:
     opt_critic = torch.optim.Adam(loss.qvalue_network_params.flatten_keys().values(), lr=tc.lr_critic)
     opt_alpha = torch.optim.Adam([loss.log_alpha], lr=tc.lr_alpha)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
-    modules = {"loss": loss, "opt_actor": opt_actor, "opt_critic": opt_critic, "opt_alpha": opt_alpha}
-    modules["replay"] = ReplayState(buffer)  # checkpointed too: a resumed run samples the same transitions
-    t.restore(modules)
+    t.restore({"loss": loss, "opt_actor": opt_actor, "opt_critic": opt_critic, "opt_alpha": opt_alpha, "replay": ReplayState(buffer)})
     t.export_actor = lambda: net.squashed(act_size)  # deterministic action tanh(loc)
 
     # -- one gradient step on actor, twin critics and temperature; then soft target update -----
@@ -77,15 +74,7 @@ def main(argv: list[str]) -> dict:
         target_update.step()
         return {k: lv[k].detach() for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}  # read only when logged
 
-    remaining = t.remaining_frames()
-    collector = Collector(
-        env, actor, frames_per_batch=int(tc.frames_per_batch), total_frames=max(remaining, int(tc.frames_per_batch)),
-        init_random_frames=max(0, int(tc.init_random_frames) - int(t.counters["frames"])), device=device, auto_register_policy_transforms=False,
-    ) if remaining > 0 else None
-    stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()})
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(t.collector(actor, random_start=True), replay_update(t, buffer, step))
 
 
 if __name__ == "__main__":

@@ -25,7 +25,6 @@ from pathlib import Path
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import MLP, AdditiveGaussianModule
 
@@ -72,10 +71,8 @@ def main(argv: list[str]) -> dict:
         annealing_num_steps=int(tc.expl_anneal_frames), device=device,
     )
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
-    modules = {"actor": actor, "critic": critic, "actor_target": actor_target, "critic_target": critic_target,
-               "opt_actor": opt_actor, "opt_critic": opt_critic, "exploration": exploration}
-    modules["replay"] = ReplayState(buffer)  # checkpointed too: a resumed run samples the same transitions
-    t.restore(modules)
+    t.restore({"actor": actor, "critic": critic, "actor_target": actor_target, "critic_target": critic_target,
+              "opt_actor": opt_actor, "opt_critic": opt_critic, "exploration": exploration, "replay": ReplayState(buffer)})
     t.export_actor = lambda: actor
     gamma, tau, noise, clip = float(tc.gamma), float(tc.tau), float(tc.policy_noise), float(tc.noise_clip)
 
@@ -103,18 +100,8 @@ def main(argv: list[str]) -> dict:
         return out
 
     # -- collection and the shared loop ----------------------------------------------------
-    remaining = t.remaining_frames()
     policy = TensorDictSequential(TensorDictModule(actor, in_keys=["observation"], out_keys=["action"]), exploration)
-    collector = Collector(
-        env, policy, frames_per_batch=int(tc.frames_per_batch),
-        total_frames=max(remaining, int(tc.frames_per_batch)), init_random_frames=max(0, int(tc.init_random_frames) - int(t.counters["frames"])),
-        device=device, auto_register_policy_transforms=False,
-    ) if remaining > 0 else None
-    stopped = t.train(collector, replay_update(t, buffer, step), lambda: {k: m.state_dict() for k, m in modules.items()},
-                      on_frames=exploration.step)
-    if stopped:
-        return {"run_dir": str(t.run), "stopped": True, "counters": t.counters}
-    return t.finish()
+    return t.train(t.collector(policy, random_start=True), replay_update(t, buffer, step), on_frames=exploration.step)
 
 
 if __name__ == "__main__":

@@ -249,7 +249,7 @@ def test_forward_distance_sensor_reads_a_wall(tmp_path):
 
 
 def test_lap_evaluation_of_the_pd_follower():
-    from torchnav.line_evaluation import format_lap_summary, run_line_episodes, summarize_laps
+    from torchnav.evaluation import format_lap_summary, run_line_episodes, summarize_laps
 
     cfg = LineConfig.from_dict({"track": "oval", "max_steps": 400})
     res = run_line_episodes(LineFollower(), cfg, n_episodes=6, seed=1, max_batch=4)

@@ -337,7 +337,7 @@ def test_shipped_checkpoints_load_and_drive(path, monkeypatch):
         where = "its worlds at difficulty 0.2" if easy else cfg.map
         assert res["success"].sum() >= 4, f"{path.name} reached only {int(res['success'].sum())}/8 goals on {where}"
     else:
-        from torchnav.line_evaluation import run_line_episodes
+        from torchnav.evaluation import run_line_episodes
 
         res = run_line_episodes(sp.policy, cfg, 8, seed=1)
         assert res["lap_complete"].sum() >= 6, f"{path.name} completed only {int(res['lap_complete'].sum())}/8 laps"

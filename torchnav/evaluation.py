@@ -1,13 +1,19 @@
 """Evaluate a policy on many seeded episodes at once and summarise with 95% confidence intervals.
 
-Each env of the batch runs exactly one episode; its outcome is read at its first
-``done``. ``goals anywhere`` evaluation is the default: the curriculum is off, so
-goals are drawn over the whole map.
+One loop for both tasks (:func:`run_batched_episodes`): each env of the batch runs exactly
+one episode, judged by the task's outcome function. Navigation (``run_episodes``) reads
+the outcome at an episode's first ``done``; ``goals anywhere`` evaluation is the default:
+the curriculum is off, so goals are drawn over the whole map. Line following
+(``run_line_episodes``) judges lap completion from random starts.
+
+    res = run_line_episodes(policy, LineConfig(track="course"), n_episodes=1000, seed=0)
+    print(format_lap_summary(summarize_laps(res), title="course"))
 """
 
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import Any, Callable, Mapping, Sequence
 
 import torch
@@ -16,8 +22,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
 from .config import merge, to_dict
-from .envs import NavEnv
-from .tasks import NavConfig
+from .envs import LineEnv, NavEnv
+from .tasks import LineConfig, NavConfig
 
 Z95 = 1.959964
 # Scenario seeds, offset by a run's seed: training envs use the run's seed itself, periodic
@@ -185,39 +191,121 @@ def bind_policy(policy: Any, env: Any) -> None:
         bind(env)
 
 
-def summarize(res: dict[str, torch.Tensor]) -> dict[str, Any]:
-    """Rates with Wilson intervals; mean steps to goal (successful episodes) and path-length
-    ratio (path / straight line, successful episodes) with normal intervals."""
-    n = res["success"].numel()
+def summarize_outcomes(res: dict[str, torch.Tensor], outcomes: Sequence[str], means: Mapping[str, torch.Tensor]) -> dict[str, Any]:
+    """The summary of any task's evaluation: the rate of each bool outcome of ``res`` with its
+    Wilson interval and count, and the mean of each ``means`` sample with a normal interval."""
+    n = res[outcomes[0]].numel()
     out: dict[str, Any] = {"episodes": n}
-    for k in ("success", "collision", "timeout"):
+    for k in outcomes:
         c = int(res[k].sum())
         lo, hi = wilson_interval(c, n)
         out[k] = {"rate": c / n if n else float("nan"), "ci95": [lo, hi], "count": c}
-    s = res["success"]
-    m, lo, hi = mean_interval(res["length"][s])
-    out["steps_to_goal"] = {"mean": m, "ci95": [lo, hi]}
-    ratio = res["path_length"][s] / res["straight_line"][s].clamp(min=1e-6)
-    m, lo, hi = mean_interval(ratio)
-    out["path_ratio"] = {"mean": m, "ci95": [lo, hi]}
-    m, lo, hi = mean_interval(res["return"])
-    out["return"] = {"mean": m, "ci95": [lo, hi]}
+    for k, x in means.items():
+        m, lo, hi = mean_interval(x)
+        out[k] = {"mean": m, "ci95": [lo, hi]}
     return out
+
+
+def format_table(s: dict[str, Any], title: str, outcomes: Sequence[str], means: Sequence[tuple[str, str]], width: int = 10) -> str:
+    """A small fixed-width table of :func:`summarize_outcomes` output: one row per outcome rate and
+    per ``(mean, unit)``."""
+    rows = [f"{title}  ({s['episodes']} episodes)" if title else f"{s['episodes']} episodes"]
+    for k in outcomes:
+        r = s[k]
+        rows.append(f"  {k:<14}{100 * r['rate']:6.1f} %   95% CI [{100 * r['ci95'][0]:5.1f}, {100 * r['ci95'][1]:5.1f}]")
+    for k, unit in means:
+        r = s[k]
+        rows.append(f"  {k:<14}{r['mean']:8.2f} {unit:<{width}} 95% CI [{r['ci95'][0]:.2f}, {r['ci95'][1]:.2f}]")
+    return "\n".join(rows)
+
+
+NAV_OUTCOMES = ("success", "collision", "timeout")
+
+
+def summarize(res: dict[str, torch.Tensor]) -> dict[str, Any]:
+    """Rates with Wilson intervals; mean steps to goal (successful episodes) and path-length
+    ratio (path / straight line, successful episodes) with normal intervals."""
+    s = res["success"]
+    ratio = res["path_length"][s] / res["straight_line"][s].clamp(min=1e-6)
+    return summarize_outcomes(res, NAV_OUTCOMES, {"steps_to_goal": res["length"][s], "path_ratio": ratio, "return": res["return"]})
 
 
 def format_summary(s: dict[str, Any], title: str = "") -> str:
     """A small fixed-width table of ``summarize`` output."""
-    rows = [f"{title}  ({s['episodes']} episodes)" if title else f"{s['episodes']} episodes"]
-    for k in ("success", "collision", "timeout"):
-        r = s[k]
-        rows.append(f"  {k:<14}{100 * r['rate']:6.1f} %   95% CI [{100 * r['ci95'][0]:5.1f}, {100 * r['ci95'][1]:5.1f}]")
-    for k, unit in (("steps_to_goal", "steps"), ("path_ratio", "x straight"), ("return", "")):
-        r = s[k]
-        rows.append(f"  {k:<14}{r['mean']:8.2f} {unit:<10} 95% CI [{r['ci95'][0]:.2f}, {r['ci95'][1]:.2f}]")
-    return "\n".join(rows)
+    return format_table(s, title, NAV_OUTCOMES, (("steps_to_goal", "steps"), ("path_ratio", "x straight"), ("return", "")))
 
 
-@torch.no_grad()
+# -- line following: lap completion from random starts ------------------------------------------
+# Each env runs one episode from its own random start on the track (the config's reset noise
+# applies), judged at its first event: the target number of laps completed (``lap_complete``), or
+# the episode ended without it (``left_line``, ``stalled``, ``collision`` or ``timeout`` at
+# ``cfg.max_steps``). The recipe target, "a full lap of the course from at least 95% of random
+# starts", is ``summarize_laps(...)["lap_complete"]["rate"] >= 0.95``.
+
+LINE_OUTCOMES = ("lap_complete", "left_line", "stalled", "collision", "timeout")
+
+
+def run_line_episodes(
+    policy: Callable[[TensorDictBase], TensorDictBase],
+    cfg: LineConfig,
+    n_episodes: int,
+    seed: int = 0,
+    laps: int = 1,
+    device: torch.device | str = "cpu",
+    max_batch: int = 4096,
+    progress: str | None = None,
+) -> dict[str, torch.Tensor]:
+    """Run ``n_episodes`` episodes (one per env, in batches of at most ``max_batch``) with the
+    deterministic ``policy`` until each completes ``laps`` laps or ends.
+
+    A policy with a ``bind(env)`` method (e.g. ``LineFollower``) is bound to each env.
+    Returns per-episode tensors: the bool outcomes :data:`LINE_OUTCOMES` (exactly one is True),
+    ``lap_time`` (s to the first lap, nan without one), ``length`` (steps), ``lap_fraction``,
+    ``time_off_line`` (s) and ``return`` at the outcome.
+    """
+    if laps < 1:
+        raise ValueError(f"laps must be >= 1, got {laps}")
+    return run_batched_episodes(policy, lambda n, s: LineEnv(cfg, num_envs=n, device=device, seed=s), partial(lap_outcome, laps=laps),
+                                n_episodes, seed, max_batch, progress)
+
+
+def lap_outcome(nxt: TensorDictBase, laps: int = 1) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """A line-following episode is judged when it completes ``laps`` laps or ends without them."""
+    ep = nxt["episode"]
+    flat = lambda x: x.reshape(-1)  # noqa: E731
+    lap = flat(ep["laps"]) >= laps
+    left, stalled = flat(nxt["left_line"]), flat(nxt["stalled"])
+    lap_time = flat(ep["lap_time"])
+    values = {
+        "lap_complete": lap,
+        "left_line": ~lap & left,
+        "stalled": ~lap & ~left & stalled,
+        "collision": ~lap & ~left & ~stalled & flat(nxt["collision"]),
+        "timeout": ~lap & flat(nxt["truncated"]),
+        "lap_time": torch.where(flat(ep["laps"]) >= 1, lap_time, torch.full_like(lap_time, float("nan"))),
+        "length": flat(ep["length"]), "lap_fraction": flat(ep["lap_fraction"]),
+        "time_off_line": flat(ep["time_off_line"]), "return": flat(ep["return"]),
+    }
+    return lap | flat(nxt["done"]), values
+
+
+def summarize_laps(res: dict[str, torch.Tensor], dt: float = 0.05) -> dict[str, Any]:
+    """Outcome rates with Wilson intervals; lap time (s, completed laps) and lap fraction (all
+    episodes) with normal intervals; the fraction of driving time with no sensor on the line
+    (``off_line``, ``dt`` s per step)."""
+    out = summarize_outcomes(res, LINE_OUTCOMES, {"lap_time": res["lap_time"][res["lap_complete"]], "lap_fraction": res["lap_fraction"],
+                                                  "return": res["return"]})
+    total = float((res["length"] * dt).sum())
+    out["off_line"] = {"fraction": float(res["time_off_line"].sum()) / total if total > 0 else float("nan")}
+    return out
+
+
+def format_lap_summary(s: dict[str, Any], title: str = "") -> str:
+    """A small fixed-width table of :func:`summarize_laps` output."""
+    table = format_table(s, title, LINE_OUTCOMES, (("lap_time", "s"), ("lap_fraction", "laps"), ("return", "")), width=6)
+    return table + f"\n  {'off_line':<14}{100 * s['off_line']['fraction']:6.1f} %   of driving time"
+
+
 def record_episodes(
     policy: Callable[[TensorDictBase], TensorDictBase],
     cfg: NavConfig,
@@ -227,7 +315,12 @@ def record_episodes(
     device: torch.device | str = "cpu",
     metadata: dict[str, Any] | None = None,
 ) -> Any:
-    """Write ``n_episodes`` episodes of the deterministic ``policy`` (one per env) to an MCAP file.
+    """Write ``n_episodes`` navigation episodes of the deterministic ``policy`` (one per env) to an MCAP file."""
+    return record_to_file(policy, NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed), path, seed, metadata)
+
+
+def record_to_file(policy: Callable[[TensorDictBase], TensorDictBase], env: Any, path, seed: int = 0, metadata: dict[str, Any] | None = None) -> Any:
+    """One deterministic episode per env of ``env`` (any task) written to the MCAP file ``path``.
 
     Returns the recorder (its ``error`` is set, and a warning was issued, if the file
     could not be written; training code can carry on).
@@ -235,8 +328,7 @@ def record_episodes(
     from .record import EpisodeRecorder
 
     meta = {"seed": seed, **(metadata or {})}
-    return record_with(policy, NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed),
-                       lambda env: EpisodeRecorder(path, env, envs=range(n_episodes), metadata=meta, episodes=1))
+    return record_with(policy, env, lambda e: EpisodeRecorder(path, e, envs=range(e.num_envs), metadata=meta, episodes=1))
 
 
 @torch.no_grad()

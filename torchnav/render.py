@@ -58,17 +58,6 @@ def _envs(env: int | Sequence[int] | None, batch: int) -> list[int]:
     return [int(e) for e in env]
 
 
-def box_corners(boxes: np.ndarray) -> np.ndarray:
-    """Corners ``(K, 4, 2)`` in m of oriented boxes ``(K, 5)`` ``[cx, cy, half_x, half_y, yaw]``, CCW."""
-    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 5)
-    signs = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], dtype=np.float64)
-    local = signs[None] * boxes[:, None, 2:4]  # (K, 4, 2)
-    c, s = np.cos(boxes[:, 4])[:, None], np.sin(boxes[:, 4])[:, None]
-    x = boxes[:, None, 0] + c * local[..., 0] - s * local[..., 1]
-    y = boxes[:, None, 1] + s * local[..., 0] + c * local[..., 1]
-    return np.stack([x, y], -1)
-
-
 def draw_obstacles(
     ax: Axes,
     segments: np.ndarray = (),
@@ -88,7 +77,12 @@ def draw_obstacles(
             LineCollection(segments.reshape(-1, 2, 2), colors=edgecolor, linewidths=2.0, linestyles=linestyle, alpha=alpha, zorder=2)
         )
     patches = [Circle((cx, cy), r) for cx, cy, r in circles]
-    patches += [Polygon(c, closed=True) for c in box_corners(boxes)]
+    if len(boxes):
+        import torch
+
+        from .sim.geometry import box_corners
+
+        patches += [Polygon(c, closed=True) for c in box_corners(torch.from_numpy(boxes)).numpy()]
     if patches:
         ax.add_collection(
             PatchCollection(

@@ -19,6 +19,7 @@ import difflib
 import math
 import os
 import re
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -189,6 +190,26 @@ def check_grey_level(ctx: Ctx, v: Any, key: str) -> float:
     if not is_number(v) or not 0 < v < 1:
         raise ctx.fail(key, f"expected a grey level in (0, 1), got {show(v)}")
     return float(v)
+
+
+def check_list(ctx: Ctx, v: Any, key: str, expected: str, item: Any) -> tuple:
+    """``item(f"{key}[{i}]", entry)`` of every entry of the list ``v``; anything but a list fails naming ``key`` and ``expected``."""
+    if not isinstance(v, list):
+        raise ctx.fail(key, f"expected {expected}, got {show(v)}")
+    return tuple(item(f"{key}[{i}]", x) for i, x in enumerate(v))
+
+
+def shipped_folder(package: str) -> Any:
+    """A package's ``data`` folder, through ``importlib.resources`` (not ``__file__``) so that shipped files
+    are found inside a wheel or zip too."""
+    return resources.files(package).joinpath("data")
+
+
+def load_named(name_or_path: Any, package: str, kind: str, error: type[Exception], parse: Any) -> Any:
+    """``parse(data, source, default name, folder for relative paths)`` of the shipped ``kind`` file of
+    ``package``'s data folder by name, or of any file by path (:func:`read_named`, :func:`load_yaml`)."""
+    text, source, name, base_dir = read_named(name_or_path, shipped_folder(package), kind, error)
+    return parse(load_yaml(text, source, error), source, name, base_dir)
 
 
 def shipped_names(folder: Any) -> list[str]:

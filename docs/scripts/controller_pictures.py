@@ -18,6 +18,8 @@ import matplotlib
 matplotlib.use("Agg")
 from matplotlib.figure import Figure  # noqa: E402
 
+from _figures import save  # noqa: E402
+
 from torchnav.controllers import drive, make_controller  # noqa: E402
 from torchnav.maps import load_map  # noqa: E402
 from torchnav.render import draw_goal, draw_obstacles, draw_robots  # noqa: E402
@@ -61,10 +63,7 @@ def main() -> None:
         ax.set_ylim(-3.5, 3.5)
         ax.set_aspect("equal")
         ax.tick_params(labelsize=7)
-    fig.tight_layout()
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(a.out, dpi=100)
-    print(f"wrote {a.out}")
+    save(fig, a.out, dpi=100)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from _figures import save  # noqa: E402
+
 from torchnav.render import read_scalars  # noqa: E402
 
 
@@ -54,10 +56,7 @@ def main() -> None:
     else:
         ax_f.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:.0f}k")
     ax_f.legend(fontsize=7)
-    fig.tight_layout()
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(a.out, dpi=110)
-    print(f"wrote {a.out}")
+    save(fig, a.out, dpi=110)
 
 
 if __name__ == "__main__":

@@ -2,10 +2,12 @@
 specs, the NaN-action check, resets and steps around a pure task, the current task state
 and the generator's checkpoint state.
 
-A task env subclasses :class:`BatchedEnv` and fills in four hooks: ``_new_state(mask)``
-(fresh episodes everywhere, or where ``mask`` is True), ``_reset_view(state)`` (the
-observation and outcome flags right after a reset), ``_after_step(out)`` (bookkeeping
-such as a curriculum) and ``_outputs(state, obs, terms, flags)`` (the output TensorDict).
+A task env subclasses :class:`BatchedEnv`, builds its specs with ``_make_specs(**fields)``
+and fills in the hooks: ``_new_state(mask)`` (fresh episodes everywhere, or where ``mask``
+is True), ``_reset_view(state)`` (the observation and outcome flags right after a reset),
+``_after_step(out)`` (bookkeeping such as a curriculum), ``_task_outputs(state)`` (its
+outputs beyond those every task has) and ``_episode_stats(state)`` (its running episode
+statistics beyond ``return`` and ``length``).
 """
 
 from __future__ import annotations
@@ -39,6 +41,21 @@ class BatchedEnv(EnvBase):
 
     def _flag_spec(self) -> Categorical:
         return Categorical(2, shape=(*self.batch_size, 1), dtype=torch.bool, device=self.device)
+
+    episode_keys: tuple[str, ...] = ("return", "length")  # a task's own statistics follow, then one per reward term
+
+    def _make_specs(self, **fields: Any) -> None:
+        """The observation spec: ``observation`` and the task's ``fields``, then what every task outputs:
+        ``pose``, ``ranges``, the outcome flags, ``reward_terms`` and ``episode``; the action and done specs."""
+        b, dev, terms = self.batch_size, self.device, self.task.term_names
+        scalar = lambda: Unbounded(shape=(*b, 1), device=dev)  # noqa: E731
+        self.observation_spec = Composite(
+            **fields, pose=Unbounded(shape=(*b, 3), device=dev), **{f: self._flag_spec() for f in self.flag_keys},
+            reward_terms=Composite({k: scalar() for k in terms}, shape=b, device=dev),
+            episode=Composite({k: scalar() for k in (*self.episode_keys, *(f"term_{k}" for k in terms))}, shape=b, device=dev),
+            shape=b, device=dev,
+        )
+        self._make_action_done_specs(self.cfg.action)
 
     def _make_action_done_specs(self, action_cfg) -> None:
         """One-hot over ``action_cfg.discrete_set`` (mode ``discrete``) or 2 values in [-1, 1]; reward and done flags."""
@@ -132,8 +149,21 @@ class BatchedEnv(EnvBase):
     def _after_step(self, out: dict[str, torch.Tensor]) -> None:
         pass
 
-    def _outputs(self, state: Any, obs: torch.Tensor, terms: dict[str, torch.Tensor], flags: dict[str, torch.Tensor]) -> TensorDict:
-        raise NotImplementedError
+    def _task_outputs(self, state: Any) -> dict[str, torch.Tensor]:
+        return {}
+
+    def _episode_stats(self, state: Any) -> dict[str, torch.Tensor]:
+        return {}
+
+    def _outputs(self, s: Any, obs: torch.Tensor, terms: dict[str, torch.Tensor], flags: dict[str, torch.Tensor]) -> TensorDict:
+        """The output TensorDict of a reset or step (``reward`` and the done flags are added by the caller)."""
+        col = lambda x: x.reshape(*self.batch_size, 1)  # noqa: E731
+        episode = {"return": s.ep_return, "length": s.steps.to(s.ep_return.dtype), **self._episode_stats(s),
+                   **{f"term_{k}": s.ep_terms[:, i] for i, k in enumerate(self.task.term_names)}}
+        return TensorDict({
+            "observation": obs, **self._task_outputs(s), "pose": s.sim.pose, "ranges": s.sim.ranges, **flags,
+            "reward_terms": {k: col(v) for k, v in terms.items()}, "episode": {k: col(v) for k, v in episode.items()},
+        }, batch_size=self.batch_size, device=self.device)
 
     def _set_seed(self, seed: int | None) -> None:
         self._generator.manual_seed(0 if seed is None else int(seed))

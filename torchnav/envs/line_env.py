@@ -11,8 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from tensordict import TensorDict
-from torchrl.data import Bounded, Composite, Unbounded
+from torchrl.data import Bounded
 
 from ..config import merge, to_dict
 from ..tasks.line import LineState, LineTask
@@ -51,24 +50,11 @@ class LineEnv(BatchedEnv):
 
     def _make_specs(self) -> None:
         b, dev, t = self.batch_size, self.device, self.task
-        flag = self._flag_spec
-        scalar = lambda: Unbounded(shape=(*b, 1), device=dev)  # noqa: E731
-        k = t.n_sensors
-        ds = self.cfg.distance_sensor
-        obs_hi = 1.0
-        self.observation_spec = Composite(
-            observation=Bounded(0.0, obs_hi, shape=(*b, t.obs_size), device=dev),
-            sensors=Bounded(0.0, 1.0, shape=(*b, k), device=dev),
-            pose=Unbounded(shape=(*b, 3), device=dev),
-            ranges=Bounded(0.0, ds.max_range, shape=(*b, 1), device=dev),
+        super()._make_specs(
+            observation=Bounded(0.0, 1.0, shape=(*b, t.obs_size), device=dev), sensors=Bounded(0.0, 1.0, shape=(*b, t.n_sensors), device=dev),
             lap_s=Bounded(0.0, t.tt.length, shape=(*b, 1), device=dev),
-            **{f: flag() for f in FLAG_KEYS},
-            reward_terms=Composite({n: scalar() for n in t.term_names}, shape=b, device=dev),
-            episode=Composite({**{n: scalar() for n in EPISODE_KEYS}, **{f"term_{n}": scalar() for n in t.term_names}},
-                              shape=b, device=dev),
-            shape=b, device=dev,
+            ranges=Bounded(0.0, self.cfg.distance_sensor.max_range, shape=(*b, 1), device=dev),
         )
-        self._make_action_done_specs(self.cfg.action)
 
     # -- the task hooks of BatchedEnv ---------------------------------------------------------
 
@@ -81,24 +67,15 @@ class LineEnv(BatchedEnv):
         # on_line as at every step: from the noise-free coverage, not from the noisy readings
         return self.task.observe(s.history, s.sim), {"on_line": self.task.on_line(s.sim.pose)[:, None]}
 
-    def _outputs(self, s: LineState, obs, terms, flags) -> TensorDict:
-        b = self.batch_size
-        col = lambda x: x.reshape(*b, 1)  # noqa: E731
+    episode_keys = EPISODE_KEYS
+
+    def _task_outputs(self, s: LineState) -> dict[str, torch.Tensor]:
+        return {"sensors": s.readings, "lap_s": s.s[:, None]}
+
+    def _episode_stats(self, s: LineState) -> dict[str, torch.Tensor]:
         f = s.progress.dtype
-        length = self.task.tt.length
-        episode = {
-            "return": col(s.ep_return), "length": col(s.steps.to(f)), "progress_m": col(s.progress),
-            "lap_fraction": col(s.progress / length), "laps": col(s.laps.to(f)), "lap_time": col(s.lap_time),
-            "time_off_line": col(s.time_off_line),
-            **{f"term_{k}": col(s.ep_terms[:, i]) for i, k in enumerate(self.task.term_names)},
-        }
-        return TensorDict(
-            {
-                "observation": obs, "sensors": s.readings, "pose": s.sim.pose, "ranges": s.sim.ranges,
-                "lap_s": col(s.s), **flags, "reward_terms": {k: col(v) for k, v in terms.items()}, "episode": episode,
-            },
-            batch_size=b, device=self.device,
-        )
+        return {"progress_m": s.progress, "lap_fraction": s.progress / self.task.tt.length, "laps": s.laps.to(f), "lap_time": s.lap_time,
+                "time_off_line": s.time_off_line}
 
     # -- state for checkpoints and recording ----------------------------------------------
 

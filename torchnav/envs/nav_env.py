@@ -11,8 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
-from tensordict import TensorDict
-from torchrl.data import Bounded, Composite, Unbounded
+from torchrl.data import Bounded, Unbounded
 
 from ..config import merge, to_dict
 from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes, after_family_episodes
@@ -41,27 +40,12 @@ class NavEnv(BatchedEnv):
     # -- specs ----------------------------------------------------------------------
 
     def _make_specs(self) -> None:
-        b, dev, t = self.batch_size, self.device, self.task
-        flag = self._flag_spec
-        scalar = lambda: Unbounded(shape=(*b, 1), device=dev)  # noqa: E731
-        lidar = self.cfg.lidar
-        self.observation_spec = Composite(
-            observation=Unbounded(shape=(*b, t.obs_size), device=dev),
-            pose=Unbounded(shape=(*b, 3), device=dev),
-            goal=Unbounded(shape=(*b, 2), device=dev),
+        b, dev, lidar = self.batch_size, self.device, self.cfg.lidar
+        super()._make_specs(
+            observation=Unbounded(shape=(*b, self.task.obs_size), device=dev), goal=Unbounded(shape=(*b, 2), device=dev),
+            curriculum_radius=Unbounded(shape=(*b, 1), device=dev),
             ranges=Bounded(lidar.min_range, lidar.max_range, shape=(*b, lidar.n_rays), device=dev),
-            success=flag(),
-            collision=flag(),
-            curriculum_radius=scalar(),
-            reward_terms=Composite({k: scalar() for k in t.term_names}, shape=b, device=dev),
-            episode=Composite(
-                {"return": scalar(), "length": scalar(), "path_length": scalar(), "straight_line": scalar(),
-                 **{f"term_{k}": scalar() for k in t.term_names}},
-                shape=b, device=dev,
-            ),
-            shape=b, device=dev,
         )
-        self._make_action_done_specs(self.cfg.action)
 
     # -- the task hooks of BatchedEnv ---------------------------------------------------------
 
@@ -83,24 +67,13 @@ class NavEnv(BatchedEnv):
         self.curriculum = after_family_episodes(self.curriculum, self.cfg.worlds, done, out["success"], self._state.family,
                                                 self._state.difficulty)
 
-    def _outputs(self, s: NavState, obs, terms, flags) -> TensorDict:
-        b = self.batch_size
-        col = lambda x: x.reshape(*b, 1)  # noqa: E731
-        episode = {
-            "return": col(s.ep_return), "length": col(s.steps.to(s.ep_return.dtype)),
-            "path_length": col(s.ep_path), "straight_line": col(s.straight),
-            **{f"term_{k}": col(s.ep_terms[:, i]) for i, k in enumerate(self.task.term_names)},
-        }
-        return TensorDict(
-            {
-                "observation": obs, "pose": s.sim.pose, "goal": s.goal, "ranges": s.sim.ranges,
-                **flags,
-                "curriculum_radius": self.curriculum.radius.expand(*b).reshape(*b, 1).clone(),
-                "reward_terms": {k: col(v) for k, v in terms.items()},
-                "episode": episode,
-            },
-            batch_size=b, device=self.device,
-        )
+    episode_keys = ("return", "length", "path_length", "straight_line")
+
+    def _task_outputs(self, s: NavState) -> dict[str, torch.Tensor]:
+        return {"goal": s.goal, "curriculum_radius": self.curriculum.radius.expand(*self.batch_size).reshape(*self.batch_size, 1).clone()}
+
+    def _episode_stats(self, s: NavState) -> dict[str, torch.Tensor]:
+        return {"path_length": s.ep_path, "straight_line": s.straight}
 
     # -- state for checkpoints and recording ------------------------------------------------
 

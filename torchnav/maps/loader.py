@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import math
 import os
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 
-from ..yamlcheck import Ctx, check_bool, check_count, check_mapping, check_number, check_grey_level, check_range, check_vector, load_yaml, read_named, shipped_names, show
+from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_list, check_mapping, check_number, check_range, check_vector, load_named,
+                         shipped_folder, shipped_names, show)
 from .occupancy import ImageError, mask_boxes, read_mask
 from .spec import MOTIONS, MapError, MapSpec, MovingCircles, RandomBoxes, RandomCircles
 
@@ -71,11 +71,7 @@ def _walls(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
 
 
 def _circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
-    if not isinstance(v, list):
-        raise ctx.fail("circles", f"expected a list of {{center, radius}} or [cx, cy, r], got {show(v)}")
-    out = []
-    for i, c in enumerate(v):
-        key = f"circles[{i}]"
+    def circle(key: str, c: Any) -> tuple[float, float, float]:
         if isinstance(c, list):  # the compact row form, for maps with hundreds of circles
             cx, cy, r = check_vector(ctx, c, key, 3)
             if r <= 0:
@@ -87,16 +83,13 @@ def _circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
         else:
             raise ctx.fail(key, f"expected {{center, radius}} or [cx, cy, r], got {show(c)}")
         _inside(ctx, key, "the circle's edge point", [cx - r, cx + r, cx, cx], [cy, cy, cy - r, cy + r], size)
-        out.append((cx, cy, r))
-    return tuple(out)
+        return (cx, cy, r)
+
+    return check_list(ctx, v, "circles", "a list of {center, radius} or [cx, cy, r]", circle)
 
 
 def _boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
-    if not isinstance(v, list):
-        raise ctx.fail("boxes", f"expected a list of {{center, size, yaw}}, got {show(v)}")
-    out = []
-    for i, b in enumerate(v):
-        key = f"boxes[{i}]"
+    def box(key: str, b: Any) -> tuple[float, float, float, float, float]:
         b = check_mapping(ctx, b, key, ("center", "size"), ("yaw",))
         cx, cy = check_vector(ctx, b["center"], f"{key}.center", 2)
         sx, sy = check_vector(ctx, b["size"], f"{key}.size", 2, "pos")
@@ -104,8 +97,9 @@ def _boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
         c, s = math.cos(yaw), math.sin(yaw)
         corners = [(cx + c * dx - s * dy, cy + s * dx + c * dy) for dx in (-sx / 2, sx / 2) for dy in (-sy / 2, sy / 2)]
         _inside(ctx, key, "a corner of the box", [p[0] for p in corners], [p[1] for p in corners], size)
-        out.append((cx, cy, sx / 2, sy / 2, yaw))
-    return tuple(out)
+        return (cx, cy, sx / 2, sy / 2, yaw)
+
+    return check_list(ctx, v, "boxes", "a list of {center, size, yaw}", box)
 
 
 def _polygons(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
@@ -272,21 +266,9 @@ def parse_map(
     )
 
 
-def _parse_text(text: str, source: str, default_name: str, base_dir: str | os.PathLike) -> MapSpec:
-    return parse_map(load_yaml(text, source, MapError), source, default_name, base_dir)
-
-
-# --------------------------------------------------------------------------- lookup
-
-
-def _data_dir():
-    # importlib.resources, not __file__, so that shipped maps are found inside a wheel or zip too.
-    return resources.files(__package__).joinpath("data")
-
-
 def available_maps() -> list[str]:
     """Names of the maps shipped with torchnav (the stems of ``torchnav/maps/data/*.yaml``)."""
-    return shipped_names(_data_dir())
+    return shipped_names(shipped_folder(__package__))
 
 
 def load_map(name_or_path: str | os.PathLike) -> MapSpec:
@@ -295,5 +277,4 @@ def load_map(name_or_path: str | os.PathLike) -> MapSpec:
     A string counts as a path when it contains a path separator or ends in
     ``.yaml``/``.yml``; anything else is looked up among :func:`available_maps`.
     """
-    text, source, name, base_dir = read_named(name_or_path, _data_dir(), "map", MapError)
-    return _parse_text(text, source, name, base_dir)
+    return load_named(name_or_path, __package__, "map", MapError, parse_map)

@@ -174,74 +174,59 @@ _NUM = {"type": "number"}
 _INT = {"type": "integer"}
 
 
+def _message(title: str, description: str, required: list[str], properties: dict) -> dict:
+    """The JSON Schema of one of torchnav's own messages: an object of ``properties``."""
+    return {"title": title, "description": description, "type": "object", "properties": properties, "required": required}
+
+
 def action_schema(action_dim: int) -> dict:
-    return {
-        "title": "torchnav.Action",
-        "description": "The policy's action and the twist it commands (recorded at the time of the state it was chosen in)",
-        "type": "object",
-        "properties": {
-            "env": {**_INT, "description": "index of the env in the batch"},
-            "episode": {**_INT, "description": "episode number of this env in the file, from 0"},
-            "step": {**_INT, "description": "step of the episode this action starts, from 0"},
-            "v": {**_NUM, "description": "applied linear speed, m/s"},
-            "omega": {**_NUM, "description": "applied turn rate, rad/s (CCW positive)"},
-            "action": {"type": "array", "items": _NUM, "minItems": action_dim, "maxItems": action_dim,
-                       "description": "raw policy output (continuous in [-1, 1], or one-hot)"},
-        },
-        "required": ["env", "episode", "step", "v", "omega", "action"],
-    }
+    return _message("torchnav.Action", "The policy's action and the twist it commands (recorded at the time of the state it was chosen in)",
+                    ["env", "episode", "step", "v", "omega", "action"], {
+        "env": {**_INT, "description": "index of the env in the batch"},
+        "episode": {**_INT, "description": "episode number of this env in the file, from 0"},
+        "step": {**_INT, "description": "step of the episode this action starts, from 0"},
+        "v": {**_NUM, "description": "applied linear speed, m/s"},
+        "omega": {**_NUM, "description": "applied turn rate, rad/s (CCW positive)"},
+        "action": {"type": "array", "items": _NUM, "minItems": action_dim, "maxItems": action_dim,
+                   "description": "raw policy output (continuous in [-1, 1], or one-hot)"},
+    })
 
 
 def reward_schema(term_names: Sequence[str]) -> dict:
     terms = {k: {**_NUM, "description": f"weighted reward term '{k}' of this step"} for k in term_names}
-    return {
-        "title": "torchnav.Reward",
-        "description": "Reward of one step, split into its terms (recorded at the time of the state it led to)",
-        "type": "object",
-        "properties": {
-            "env": _INT, "episode": _INT,
-            "step": {**_INT, "description": "steps done in this episode, from 1"},
-            "reward": {**_NUM, "description": "total reward of the step (sum of the terms)"},
-            "return": {**_NUM, "description": "return of the episode so far"},
-            "v": {**_NUM, "description": "linear speed after the step, m/s"},
-            "omega": {**_NUM, "description": "turn rate after the step, rad/s"},
-            "terms": {"type": "object", "properties": terms, "required": list(term_names)},
-            "curriculum_radius": {**_NUM, "description": "goal-distance curriculum radius, m"},
-            "goal_distance": {**_NUM, "description": "distance from the robot centre to the goal, m"},
-            "success": {"type": "boolean"}, "collision": {"type": "boolean"},
-        },
-        "required": ["env", "episode", "step", "reward", "return", "v", "omega", "terms", "curriculum_radius"],
-    }
+    return _message("torchnav.Reward", "Reward of one step, split into its terms (recorded at the time of the state it led to)",
+                    ["env", "episode", "step", "reward", "return", "v", "omega", "terms", "curriculum_radius"], {
+        "env": _INT, "episode": _INT,
+        "step": {**_INT, "description": "steps done in this episode, from 1"},
+        "reward": {**_NUM, "description": "total reward of the step (sum of the terms)"},
+        "return": {**_NUM, "description": "return of the episode so far"},
+        "v": {**_NUM, "description": "linear speed after the step, m/s"},
+        "omega": {**_NUM, "description": "turn rate after the step, rad/s"},
+        "terms": {"type": "object", "properties": terms, "required": list(term_names)},
+        "curriculum_radius": {**_NUM, "description": "goal-distance curriculum radius, m"},
+        "goal_distance": {**_NUM, "description": "distance from the robot centre to the goal, m"},
+        "success": {"type": "boolean"}, "collision": {"type": "boolean"},
+    })
 
 
 def imu_schema() -> dict:
-    return {
-        "title": "torchnav.Imu",
-        "description": "The robot's planar IMU reading after a step, in the robot frame (x forward, y left)",
-        "type": "object",
-        "properties": {
-            "timestamp": {"type": "object", "properties": {"sec": _INT, "nsec": _INT}},
-            "frame_id": {"type": "string", "description": "the robot's base frame"},
-            "linear_acceleration": {"type": "object", "description": "m/s^2, bias and noise included (z is 0: no gravity)",
-                                    "properties": {"x": _NUM, "y": _NUM, "z": _NUM}},
-            "angular_velocity": {"type": "object", "description": "rad/s, bias and noise included (only z, the yaw rate)",
-                                 "properties": {"x": _NUM, "y": _NUM, "z": _NUM}},
-        },
-        "required": ["timestamp", "frame_id", "linear_acceleration", "angular_velocity"],
-    }
+    return _message("torchnav.Imu", "The robot's planar IMU reading after a step, in the robot frame (x forward, y left)",
+                    ["timestamp", "frame_id", "linear_acceleration", "angular_velocity"], {
+        "timestamp": {"type": "object", "properties": {"sec": _INT, "nsec": _INT}},
+        "frame_id": {"type": "string", "description": "the robot's base frame"},
+        "linear_acceleration": {"type": "object", "description": "m/s^2, bias and noise included (z is 0: no gravity)",
+                                "properties": {"x": _NUM, "y": _NUM, "z": _NUM}},
+        "angular_velocity": {"type": "object", "description": "rad/s, bias and noise included (only z, the yaw rate)",
+                             "properties": {"x": _NUM, "y": _NUM, "z": _NUM}},
+    })
 
 
 def movers_schema() -> dict:
-    return {
-        "title": "torchnav.Movers",
-        "description": "The moving obstacles of one env after a step",
-        "type": "object",
-        "properties": {
-            "env": _INT, "episode": _INT,
-            "discs": {"type": "array", "items": _NUM, "description": "existing movers [x m, y m, vx m/s, vy m/s, radius m], 5 numbers each, one after the other"},
-        },
-        "required": ["env", "episode", "discs"],
-    }
+    return _message("torchnav.Movers", "The moving obstacles of one env after a step",
+                    ["env", "episode", "discs"], {
+        "env": _INT, "episode": _INT,
+        "discs": {"type": "array", "items": _NUM, "description": "existing movers [x m, y m, vx m/s, vy m/s, radius m], 5 numbers each, one after the other"},
+    })
 
 
 EVENT_KINDS = ("start", "success", "collision", "timeout", "terminated")
@@ -251,28 +236,23 @@ def event_schema() -> dict:
     def rows(width: int, what: str) -> dict:
         return {"type": "array", "items": _NUM, "description": f"{what}, {width} numbers each, one after the other"}
 
-    return {
-        "title": "torchnav.EpisodeEvent",
-        "description": "Start or end of an episode of one env. Start events carry the episode's world.",
-        "type": "object",
-        "properties": {
-            "env": _INT, "episode": _INT,
-            "event": {"type": "string", "enum": list(EVENT_KINDS)},
-            "reason": {"type": "string", "description": "why a 'terminated' episode ended (the env's flag, e.g. left_line)"},
-            "steps": {**_INT, "description": "steps done in the episode"},
-            "return": _NUM, "path_length": {**_NUM, "description": "m driven"},
-            "straight_line": {**_NUM, "description": "start-goal distance, m"},
-            "start": {"type": "array", "items": _NUM, "description": "start pose [x m, y m, yaw rad]"},
-            "goal": {"type": "array", "items": _NUM, "description": "goal [x m, y m]"},
-            "world": {
-                "type": "object",
-                "description": "obstacles of the episode as flat lists (m, rad)",
-                "properties": {"segments": rows(4, "walls [x1, y1, x2, y2]"), "circles": rows(3, "circles [cx, cy, r]"),
-                               "boxes": rows(5, "boxes [cx, cy, half_x, half_y, yaw]"), "fixed_only": {"type": "boolean"}},
-            },
+    return _message("torchnav.EpisodeEvent", "Start or end of an episode of one env. Start events carry the episode's world.",
+                    ["env", "episode", "event"], {
+        "env": _INT, "episode": _INT,
+        "event": {"type": "string", "enum": list(EVENT_KINDS)},
+        "reason": {"type": "string", "description": "why a 'terminated' episode ended (the env's flag, e.g. left_line)"},
+        "steps": {**_INT, "description": "steps done in the episode"},
+        "return": _NUM, "path_length": {**_NUM, "description": "m driven"},
+        "straight_line": {**_NUM, "description": "start-goal distance, m"},
+        "start": {"type": "array", "items": _NUM, "description": "start pose [x m, y m, yaw rad]"},
+        "goal": {"type": "array", "items": _NUM, "description": "goal [x m, y m]"},
+        "world": {
+            "type": "object",
+            "description": "obstacles of the episode as flat lists (m, rad)",
+            "properties": {"segments": rows(4, "walls [x1, y1, x2, y2]"), "circles": rows(3, "circles [cx, cy, r]"),
+                           "boxes": rows(5, "boxes [cx, cy, half_x, half_y, yaw]"), "fixed_only": {"type": "boolean"}},
         },
-        "required": ["env", "episode", "event"],
-    }
+    })
 
 
 # -- a small validator -----------------------------------------------------------------------

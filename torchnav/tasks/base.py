@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable
 
 import torch
 
@@ -17,3 +17,14 @@ class BatchedTask:
         self.num_envs = num_envs
         self.device = torch.device(device)
         self.dtype = dtype
+
+    @staticmethod
+    def replace_where(state: Any, mask: torch.Tensor, fresh: Callable[[torch.Tensor], Any]) -> tuple[Any, int]:
+        """``state`` with the rows of the envs where ``mask`` ``(B,)`` is True replaced by ``fresh(idx)``
+        (new episodes for envs ``idx``), and how many were replaced. Out of place, leaf by leaf: callers
+        may hold views of the old state; the other envs are left bit-identical. One host
+        synchronisation (``nonzero``) selects the envs, so only they are sampled."""
+        idx = mask.reshape(-1).nonzero().squeeze(-1)
+        if idx.numel() == 0:
+            return state, 0
+        return state.apply(lambda old, new: old.index_put((idx,), new), fresh(idx)), idx.numel()

@@ -22,6 +22,7 @@ from ..sim.floor import band_coverage, floor_readings, nearest_distance, sensor_
 from ..tracks import load_track, path_pose, project_on_path, wrap_delta
 from .base import BatchedTask
 from .line_config import LineConfig
+from .rewards import sum_terms, weighted
 
 
 @tensorclass
@@ -155,15 +156,8 @@ class LineTask(BatchedTask):
         return self._fresh(self.num_envs, gen)
 
     def reset(self, state: LineState, mask: Tensor, gen: torch.Generator) -> LineState:
-        """New episodes where ``mask`` ``(B,)`` is True; the other envs are left bit-identical.
-
-        One host synchronisation (``nonzero``) selects the envs; only they are sampled.
-        """
-        idx = mask.reshape(-1).nonzero().squeeze(-1)
-        if idx.numel() == 0:
-            return state
-        fresh = self._fresh(idx.numel(), gen)
-        return state.apply(lambda old, new: old.index_put((idx,), new), fresh)
+        """New episodes where ``mask`` ``(B,)`` is True; the other envs are left bit-identical (``replace_where``)."""
+        return self.replace_where(state, mask, lambda idx: self._fresh(idx.numel(), gen))[0]
 
     # -- step -------------------------------------------------------------------------------
 
@@ -191,13 +185,11 @@ class LineTask(BatchedTask):
         terminated = left_line | stalled | collision
         truncated = (steps >= c.max_steps) & ~terminated
         off = (~on_line).to(self.dtype)
-        raw = {
+        terms = weighted(self.weights, {
             "progress": lambda: ds, "off_line": lambda: off, "failure": lambda: terminated.to(self.dtype),
             "lap": lambda: lap_completed.to(self.dtype), "turning": lambda: sim.vel[:, 1].abs(), "step": lambda: torch.ones_like(ds),
-        }
-        terms = {k: w * raw[k]() for k, w in self.weights.items()}
-        stacked = torch.stack([terms[k] for k in self.term_names], dim=-1) if terms else state.ep_terms[:, :0]
-        reward = stacked.sum(-1) if terms else torch.zeros_like(ds)
+        })
+        stacked, reward = sum_terms(terms, state.ep_terms)
         history = torch.cat((state.history[:, 1:], readings[:, None]), dim=1)
         first_lap = lap_completed & (state.laps == 0)
         new = LineState(

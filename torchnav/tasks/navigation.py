@@ -22,7 +22,7 @@ from ..sim import step as sim_step
 from .base import BatchedTask
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
-from .rewards import resolve_weights, reward_terms
+from .rewards import resolve_weights, reward_terms, sum_terms
 from .sampling import MoverSource, place_movers, place_random_objects, sample_goals, sample_starts
 
 
@@ -211,18 +211,13 @@ class NavTask(BatchedTask):
     def reset(self, state: NavState, mask: Tensor, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
         """New episodes for the envs where ``mask`` ``(B,)`` is True; the others are left bit-identical.
 
-        One host synchronisation (``nonzero``) selects the envs; only they are sampled
-        (or, with ``cfg.reset.pool > 0``, taken from a pool of pre-sampled episodes the
-        task keeps between calls). Each placed goal advances the curriculum.
+        Only they are sampled (``replace_where``; or, with ``cfg.reset.pool > 0``, taken from a
+        pool of pre-sampled episodes the task keeps between calls). Each placed goal advances
+        the curriculum.
         """
-        idx = mask.reshape(-1).nonzero().squeeze(-1)
-        if idx.numel() == 0:
-            return state, cur
         pooled = self.cfg.reset.pool > 0 or self.families  # generating worlds costs the same for 1 env or 1,000
-        fresh = self._from_pool(idx.numel(), cur, gen) if pooled else self._fresh(idx, cur, gen)
-        # Out of place, leaf by leaf: callers may hold views of the old state.
-        state = state.apply(lambda old, new: old.index_put((idx,), new), fresh)
-        return state, after_placements(cur, self.cfg.curriculum, torch.tensor(idx.numel(), device=self.device))
+        state, n = self.replace_where(state, mask, lambda idx: self._from_pool(idx.numel(), cur, gen) if pooled else self._fresh(idx, cur, gen))
+        return state, (after_placements(cur, self.cfg.curriculum, torch.tensor(n, device=self.device)) if n else cur)
 
     def _from_pool(self, n: int, cur: CurriculumState, gen: torch.Generator) -> NavState:
         """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short.
@@ -267,8 +262,7 @@ class NavTask(BatchedTask):
             self.weights, self.cfg.reward, success=success, collision=collision, vel=sim.vel,
             d_min=sim.ranges.amin(-1), progress=state.goal_dist - dist, bearing=bearing,
         )
-        stacked = torch.stack([terms[k] for k in self.term_names], dim=-1) if terms else state.ep_terms[:, :0]
-        reward = stacked.sum(-1) if terms else torch.zeros_like(dist)
+        stacked, reward = sum_terms(terms, state.ep_terms)
         steps = state.steps + 1
         terminated = success | collision
         truncated = (steps >= self.cfg.max_steps) & ~terminated

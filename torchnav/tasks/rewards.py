@@ -18,6 +18,8 @@ Raw terms (per env, per step):
 
 from __future__ import annotations
 
+from typing import Callable
+
 import torch
 from torch import Tensor
 
@@ -74,4 +76,17 @@ def reward_terms(
         "step": lambda: torch.ones_like(v),
         "heading": lambda: torch.cos(bearing) * alive,
     }
+    return weighted(weights, raw)
+
+
+def weighted(weights: dict[str, float], raw: dict[str, Callable[[], Tensor]]) -> dict[str, Tensor]:
+    """``{name: weight * raw term (B,)}`` for the terms named in ``weights``; a raw term is computed only
+    when weighted (both tasks' reward terms go through here)."""
     return {k: wt * raw[k]() for k, wt in weights.items()}
+
+
+def sum_terms(terms: dict[str, Tensor], ep_terms: Tensor) -> tuple[Tensor, Tensor]:
+    """The weighted terms stacked ``(B, T)`` in their order (``ep_terms`` ``(B, T)`` gives the shape when
+    there are none) and their sum, the step's reward ``(B,)``."""
+    stacked = torch.stack(list(terms.values()), dim=-1) if terms else ep_terms[:, :0]
+    return stacked, stacked.sum(-1)

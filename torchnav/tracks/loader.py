@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import math
 import os
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..maps.occupancy import ImageError, read_mask
-from ..yamlcheck import Ctx, check_bool, check_grey_level, check_mapping, check_number, check_vector, is_number, load_yaml, read_named, shipped_names, show
+from ..yamlcheck import (Ctx, check_bool, check_grey_level, check_list, check_mapping, check_number, check_vector, is_number, load_named, shipped_folder,
+                         shipped_names, show)
 from .geometry import CurveError, catmull_rom, fillet_polyline, resample
 from .png import track_from_mask
 from .track import Track, TrackError
@@ -60,9 +60,8 @@ def _curve(ctx: Ctx, v: dict, key: str, spacing: float, force_closed: bool = Fal
 
 
 def _walls(ctx: Ctx, v: Any) -> np.ndarray:
-    if not isinstance(v, list):
-        raise ctx.fail("walls", f"expected a list of [x1, y1, x2, y2] segments in m, got {show(v)}")
-    return np.asarray([check_vector(ctx, w, f"walls[{i}]", 4) for i, w in enumerate(v)], dtype=np.float64).reshape(-1, 4)
+    walls = check_list(ctx, v, "walls", "a list of [x1, y1, x2, y2] segments in m", lambda key, w: check_vector(ctx, w, key, 4))
+    return np.asarray(walls, dtype=np.float64).reshape(-1, 4)
 
 
 def _segments(line: np.ndarray) -> np.ndarray:
@@ -148,17 +147,9 @@ def _track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, wal
     return track_from_mask(mask, res, origin, width, lap, spacing, walls, name, ctx.source, desc)
 
 
-def _parse_text(text: str, source: str, default_name: str, base_dir: str | os.PathLike | None) -> Track:
-    return parse_track(load_yaml(text, source, TrackError), source, default_name, base_dir)
-
-
-def _data_dir():
-    return resources.files(__package__).joinpath("data")
-
-
 def available_tracks() -> list[str]:
     """Names of the tracks shipped with torchnav (stems of ``torchnav/tracks/data/*.yaml``)."""
-    return shipped_names(_data_dir())
+    return shipped_names(shipped_folder(__package__))
 
 
 def load_track(name_or_path: str | os.PathLike) -> Track:
@@ -166,5 +157,4 @@ def load_track(name_or_path: str | os.PathLike) -> Track:
 
     A string counts as a path when it contains a path separator or ends in ``.yaml``/``.yml``.
     """
-    text, source, name, base_dir = read_named(name_or_path, _data_dir(), "track", TrackError)
-    return _parse_text(text, source, name, base_dir)
+    return load_named(name_or_path, __package__, "track", TrackError, parse_track)

@@ -1,0 +1,159 @@
+"""The task protocol: one object per task that builds its envs, evaluates and records a policy
+on it, and says what a training loop shows of it. The recipes, ``recipes/evaluate.py`` and the
+training loop use it for both tasks, so none of them branches on the task.
+
+    from torchnav.protocol import task_protocol
+    task = task_protocol(LineConfig(track="oval"), laps=2)     # or task_protocol(NavConfig(...))
+    s = task.evaluate(policy, episodes=1000, seed=FINAL_EVAL_SEED, device="cpu")
+    print(task.format(s))                                      # s["score"]: the rate a target is set on
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable
+
+from .config import to_dict
+from .envs import LineEnv, NavEnv
+from .envs.base import BatchedEnv
+from .evaluation import (eval_config, format_lap_summary, format_summary, record_to_file, record_with, run_episodes, run_line_episodes,
+                         summarize, summarize_laps)
+from .tasks import LineConfig, NavConfig
+
+
+class TaskProtocol:
+    """What a training loop, evaluation and recording need of a task; see the module docstring."""
+
+    name = ""  # "nav" or "line": the ``task`` of a saved policy (torchnav.policy)
+    place = ""  # the config key naming where the task runs: "map" or "track"
+    config_class: type = object
+    env_class: type = BatchedEnv
+    outcome_keys: tuple[str, ...] = ()  # flags of finished training episodes behind the train/<flag>_rate figures
+    outcomes: tuple[str, ...] = ()  # evaluation outcomes shown on one line; the first one's rate is the score
+
+    def __init__(self, config: Any, eval_config: Any = None, **env_options: Any) -> None:
+        self.config, self.env_options = config, env_options
+        self.eval_config = config if eval_config is None else eval_config  # the task as evaluation plays it
+
+    def make_env(self, num_envs: int, device, seed: int) -> BatchedEnv:
+        """The training env."""
+        return self.env_class(self.config, num_envs=num_envs, device=device, seed=seed, **self.env_options)
+
+    def eval_env(self, num_envs: int, device, seed: int) -> BatchedEnv:
+        """An env as evaluation plays it (one episode per env)."""
+        return self.env_class(self.eval_config, num_envs=num_envs, device=device, seed=seed)
+
+    def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
+        """The summary of ``episodes`` deterministic evaluation episodes, one per env."""
+        raise NotImplementedError
+
+    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
+        """:meth:`run`'s summary plus ``"score"``, the rate of the first outcome (compared with a target)."""
+        s = self.run(policy, episodes, seed, device, progress)
+        s["score"] = s[self.outcomes[0]]["rate"]
+        return s
+
+    def describe(self, s: dict[str, Any]) -> str:
+        """One line of an evaluation summary's rates."""
+        return " ".join(f"{k} {100 * s[k]['rate']:.1f}%" for k in self.outcomes)
+
+    def format(self, s: dict[str, Any], title: str | None = None) -> str:
+        """The summary as a text table."""
+        raise NotImplementedError
+
+    def record_with(self, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any]) -> Any:
+        """``torchnav.evaluation.record_with`` on ``eval_env(episodes, ...)`` (an MCAP file or a ``LiveView``)."""
+        return record_with(policy, self.eval_env(episodes, device, seed), make_recorder)
+
+    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict | None = None) -> Any:
+        """``episodes`` deterministic evaluation episodes written to the MCAP file ``path``; returns the recorder."""
+        return record_to_file(policy, self.eval_env(episodes, device, seed), path, seed, metadata)
+
+    def status(self, env) -> str:
+        """A short progress-bar field of a training env (the curriculum), or ``""``."""
+        return ""
+
+    def scalars(self, env) -> dict[str, float]:
+        """Logged figures of a training env beyond the outcome rates (the curriculum)."""
+        return {}
+
+    def task_config(self) -> dict[str, Any]:
+        return to_dict(self.config)
+
+    def where(self) -> str:
+        """Where the task runs, for titles and ``summary.json``'s ``map``/``track``."""
+        return str(getattr(self.config, self.place))
+
+
+class NavProtocol(TaskProtocol):
+    """Lidar navigation: evaluation with goals anywhere (``anywhere``; the curriculum off) and
+    procedural worlds at a fixed difficulty; the curriculum in the progress output."""
+
+    name, place, config_class, env_class = "nav", "map", NavConfig, NavEnv
+    outcome_keys = ("success", "collision")
+    outcomes = ("success", "collision", "timeout")
+
+    def __init__(self, config: NavConfig, anywhere: bool = True, compile_step: bool = False) -> None:
+        if not config.worlds.families:
+            from .maps import load_map
+
+            load_map(config.map)  # an unknown or malformed map is named now, before any run starts
+        super().__init__(config, eval_config(config, anywhere=anywhere), compile_step=bool(compile_step))
+        self.anywhere = anywhere
+
+    def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
+        return summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress))
+
+    def where(self) -> str:
+        w = self.eval_config.worlds
+        return f"worlds {'+'.join(w.families)} at difficulty {w.difficulty:g}" if w.families else self.config.map
+
+    def format(self, s: dict[str, Any], title: str | None = None) -> str:
+        goals = "goals anywhere" if self.anywhere else "the training curriculum's goals"
+        return format_summary(s, title=title or f"final evaluation on {self.where()}, {goals}, deterministic policy")
+
+    def status(self, env) -> str:
+        if self.config.worlds.families:
+            return "difficulty " + "/".join(f"{d:.2f}" for d in env.curriculum.difficulty.tolist())
+        return f"radius {env.curriculum.radius.item():.2f}m"
+
+    def scalars(self, env) -> dict[str, float]:
+        out = {"curriculum/radius": env.curriculum.radius.item()}
+        for name, d, rate in zip(self.config.worlds.families, env.curriculum.difficulty.tolist(), env.curriculum.family_success.tolist()):
+            out[f"curriculum/difficulty/{name}"] = d
+            out[f"curriculum/success/{name}"] = rate
+        return out
+
+
+class LineProtocol(TaskProtocol):
+    """Line following: evaluation on completing ``laps`` laps from random starts."""
+
+    name, place, config_class, env_class = "line", "track", LineConfig, LineEnv
+    outcome_keys = ("left_line", "stalled")
+    outcomes = ("lap_complete", "left_line", "stalled", "timeout")
+
+    def __init__(self, config: LineConfig, laps: int = 1) -> None:
+        super().__init__(config)
+        from .tracks import load_track
+
+        load_track(config.track)  # an unknown or malformed track is named now, before any run starts
+        self.laps = int(laps)
+
+    def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
+        res = run_line_episodes(policy, self.config, episodes, seed=seed, laps=self.laps, device=device, progress=progress)
+        return summarize_laps(res, dt=self.config.robot.dt)
+
+    def format(self, s: dict[str, Any], title: str | None = None) -> str:
+        return format_lap_summary(s, title=title or f"final evaluation on {self.where()}: {self.laps} lap(s) from random starts, deterministic policy")
+
+
+PROTOCOLS: dict[str, type[TaskProtocol]] = {p.name: p for p in (NavProtocol, LineProtocol)}
+
+
+def task_protocol(config: NavConfig | LineConfig, **options: Any) -> TaskProtocol:
+    """The protocol of a task config: ``NavProtocol(config, anywhere=, compile_step=)`` or
+    ``LineProtocol(config, laps=)``."""
+    for p in PROTOCOLS.values():
+        if isinstance(config, p.config_class):
+            return p(config, **options)
+    raise TypeError(f"task_protocol: expected a NavConfig or a LineConfig, got {type(config).__name__}")
