@@ -139,3 +139,26 @@ def test_config_is_checked_before_the_run(tmp_path):
     with pytest.raises(ConfigError, match="smooth.contcat"):
         apg_lidar.main(["smooth.contcat=-1", f"logger.run_dir={run}"])
     assert not run.exists()
+
+
+def test_saturation_bench_counts_full_speed_steps_and_collisions(tmp_path):
+    """bench/apg_saturation.py: a policy biased to full speed and a gentle turn spends every step
+    above 95% of the top speed and collides there; one biased to half speed never does."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+    import apg_saturation
+
+    from torchnav.policy import save_policy
+
+    cfg = merge(to_dict(NavConfig()), {"map": "arena", "curriculum": {"mode": "off"}, "max_steps": 100})
+    obs_size = nav_env(1, max_steps=100).task.obs_size
+    rows = {}
+    for name, bias in (("fast", [3.0, 0.3]), ("half", [0.0, 0.3])):
+        actor = Actor(obs_size, 2, [8], "tanh", output="tanh")
+        with torch.no_grad():
+            actor.net[-1].weight.zero_()
+            actor.net[-1].bias.copy_(torch.tensor(bias))
+        save_policy(tmp_path / f"{name}.pt", actor, task="nav", task_config=cfg, algorithm="apg")
+        rows[name] = apg_saturation.measure(str(tmp_path / f"{name}.pt"), 16, 0)
+    assert rows["fast"]["fast_steps"] == 1.0 and rows["fast"]["collisions"] > 0
+    assert rows["fast"]["fast_collisions"] == rows["fast"]["collisions"]
+    assert rows["half"]["fast_steps"] == 0.0 and rows["half"]["fast_collisions"] == 0
