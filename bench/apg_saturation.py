@@ -5,7 +5,7 @@
 For each ``actor.pt`` (any continuous navigation policy, e.g. of recipes/apg_lidar.py):
 run ``--episodes`` episodes of its own map, goals anywhere, deterministic policy, one per
 env (seed ``--seed``), and report the share of steps whose speed command exceeds 95% of
-the top speed (the policy's ``tanh`` output above 0.9, where ``tanh' < 0.1`` lets little
+the top speed (the policy's ``tanh`` output ``a`` above 0.9, where ``tanh' = 1 - a^2 < 0.19`` lets little
 gradient through: ``train.action_reg`` in docs/training.md), and the collisions, all of
 them and those at more than 95% of the top speed. One Markdown row per policy.
 """

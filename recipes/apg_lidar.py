@@ -1,6 +1,6 @@
 """Analytic policy gradients through the differentiable simulator (SHAC-style), on lidar navigation.
 
-    python recipes/apg_lidar.py                       # arena, 32 envs, horizons of 32 steps, CPU, 2-3 minutes
+    python recipes/apg_lidar.py                       # arena, 32 envs, horizons of 32 steps, CPU, 2-5 minutes
     python recipes/apg_lidar.py train.horizon=16 smooth.contact=-20
     python recipes/apg_lidar.py --resume              # continue the newest run
 
