@@ -135,7 +135,7 @@ for _keys, _rule in {
      "smooth.contact_margin"):
         (lambda v: _is_num(v) and v > 0, "a finite number > 0"),
     ("train.policy_noise", "train.noise_clip", "train.expl_sigma_init", "train.expl_sigma_end", "train.entropy_coeff",
-     "train.critic_coeff"): (lambda v: _is_num(v) and v >= 0, "a finite number >= 0"),
+     "train.critic_coeff", "train.action_reg"): (lambda v: _is_num(v) and v >= 0, "a finite number >= 0"),
     ("train.gamma", "train.tau"): (lambda v: _is_num(v) and 0 < v <= 1, "a number in (0, 1]"),
     ("train.lmbda", "train.eps_init", "train.eps_end", "eval.target_success"): (lambda v: _is_num(v) and 0 <= v <= 1, "a number in [0, 1]"),
     ("train.init_log_std",): (_is_num, "a finite number"),

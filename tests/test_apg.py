@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import torch
+from tensordict import TensorDict
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "recipes"))
 import apg_lidar  # noqa: E402
@@ -82,6 +83,19 @@ def test_lambda_returns_by_hand():
     assert torch.allclose(out, torch.tensor([[g0, g1, g2]]))
 
 
+def test_action_reg_pulls_the_pre_tanh_actions_towards_zero():
+    """``horizon_loss(batch, action_reg)`` adds ``action_reg * mean(loc^2)``: with the return's share
+    zeroed, one gradient step shrinks every saturated pre-tanh action."""
+    loc = torch.tensor([[[3.0, -2.5], [2.0, 0.5]]], requires_grad=True)  # (N=1, H=2, 2)
+    batch = TensorDict({"apg": torch.zeros(1, 2), "loc": loc}, batch_size=[1, 2])
+    assert apg_lidar.horizon_loss(batch) == 0.0
+    loss = apg_lidar.horizon_loss(batch, action_reg=0.5)
+    assert torch.isclose(loss, 0.5 * loc.detach().square().mean())
+    (grad,) = torch.autograd.grad(loss, loc)
+    assert torch.allclose(grad, 0.5 * 2 * loc.detach() / loc.numel())
+    assert ((loc - grad).abs() < loc.abs()).all()
+
+
 def test_long_run_with_collisions_stays_finite():
     """16 horizons of 32 steps with a policy that drives into things: many collisions and resets
     inside horizons, yet every loss, gradient and state stays finite."""
@@ -117,11 +131,34 @@ def test_config_is_checked_before_the_run(tmp_path):
     run = tmp_path / "run"
     with pytest.raises(ConfigError) as e:
         apg_lidar.main(["train.horizon=0", "smooth.contact_margin=0", "smooth.ramp_frames=-1", "train.lr_decay=maybe",
-                        "smooth.contact=x", f"logger.run_dir={run}"])
+                        "smooth.contact=x", "train.action_reg=-1", f"logger.run_dir={run}"])
     for want in ("train.horizon=0: must be an integer >= 1", "smooth.contact_margin=0: must be a finite number > 0",
                  "smooth.ramp_frames=-1: must be an integer >= 0", "train.lr_decay='maybe': must be true or false",
-                 "smooth.contact='x': must be a float"):
+                 "smooth.contact='x': must be a float", "train.action_reg=-1: must be a finite number >= 0"):
         assert want in str(e.value), str(e.value)
     with pytest.raises(ConfigError, match="smooth.contcat"):
         apg_lidar.main(["smooth.contcat=-1", f"logger.run_dir={run}"])
     assert not run.exists()
+
+
+def test_saturation_bench_counts_full_speed_steps_and_collisions(tmp_path):
+    """bench/apg_saturation.py: a policy biased to full speed and a gentle turn spends every step
+    above 95% of the top speed and collides there; one biased to half speed never does."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+    import apg_saturation
+
+    from torchnav.policy import save_policy
+
+    cfg = merge(to_dict(NavConfig()), {"map": "arena", "curriculum": {"mode": "off"}, "max_steps": 100})
+    obs_size = nav_env(1, max_steps=100).task.obs_size
+    rows = {}
+    for name, bias in (("fast", [3.0, 0.3]), ("half", [0.0, 0.3])):
+        actor = Actor(obs_size, 2, [8], "tanh", output="tanh")
+        with torch.no_grad():
+            actor.net[-1].weight.zero_()
+            actor.net[-1].bias.copy_(torch.tensor(bias))
+        save_policy(tmp_path / f"{name}.pt", actor, task="nav", task_config=cfg, algorithm="apg")
+        rows[name] = apg_saturation.measure(str(tmp_path / f"{name}.pt"), 16, 0)
+    assert rows["fast"]["fast_steps"] == 1.0 and rows["fast"]["collisions"] > 0
+    assert rows["fast"]["fast_collisions"] == rows["fast"]["collisions"]
+    assert rows["half"]["fast_steps"] == 0.0 and rows["half"]["fast_collisions"] == 0

@@ -42,7 +42,8 @@ def rollout(env, loc_net: Callable[[Tensor], Tensor], value: Callable[[Tensor], 
             gamma: float, sigma: float, outcome_keys: tuple[str, ...]) -> TensorDict:
     """``horizon`` steps of every env of a ``BatchedEnv`` with the autograd graph kept; returns a ``(N, horizon)`` batch.
 
-    The action is ``tanh(loc_net(obs) + sigma * noise)``. ``"apg"`` holds each step's share of the
+    The action is ``tanh(loc_net(obs) + sigma * noise)``; ``"loc"`` holds ``loc_net(obs)`` with its graph
+    (for :func:`horizon_loss`'s ``action_reg``). ``"apg"`` holds each step's share of the
     differentiable objective ``gamma^k r_t (+ gamma^(k+1) V(s_{t+1})`` at a horizon end or truncation),
     ``k`` counting from the horizon start or the episode start if later, ``r_t`` the task's reward plus
     ``smooth(state)``; ``"observation"``, ``"reward"`` and ``"bootstrap"`` (``V`` of the next state, 0
@@ -65,7 +66,7 @@ def rollout(env, loc_net: Callable[[Tensor], Tensor], value: Callable[[Tensor], 
         end = done if t < horizon - 1 else torch.ones_like(done)
         apg = disc * (reward + gamma * boot * end.to(boot.dtype))
         steps.append({
-            "apg": apg, "observation": obs.detach(), "reward": reward.detach(), "bootstrap": boot.detach(),
+            "apg": apg, "loc": loc, "observation": obs.detach(), "reward": reward.detach(), "bootstrap": boot.detach(),
             "next": {"done": done[:, None], "terminated": terminated[:, None], **{k: out[k][:, None] for k in outcome_keys},
                      "episode": {"return": last.ep_return.detach()[:, None], "length": last.steps.to(obs.dtype)[:, None]}},
         })
@@ -75,9 +76,12 @@ def rollout(env, loc_net: Callable[[Tensor], Tensor], value: Callable[[Tensor], 
     return TensorDict.stack([TensorDict(s, batch_size=[n]) for s in steps], dim=1)
 
 
-def horizon_loss(batch: TensorDict) -> Tensor:
-    """The actor loss of a horizon: minus the differentiable objective per env step."""
-    return -batch["apg"].sum() / batch.numel()
+def horizon_loss(batch: TensorDict, action_reg: float = 0.0) -> Tensor:
+    """The actor loss of a horizon: minus the differentiable objective per env step, plus
+    ``action_reg`` times the mean square of the pre-``tanh`` actions (it keeps them out of the
+    ``tanh``'s flat tails, where the gradient of the return no longer reaches the policy)."""
+    loss = -batch["apg"].sum() / batch.numel()
+    return loss + action_reg * batch["loc"].square().mean() if action_reg else loss
 
 
 def lambda_returns(reward: Tensor, bootstrap: Tensor, done: Tensor, gamma: float, lmbda: float) -> Tensor:

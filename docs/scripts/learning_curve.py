@@ -14,6 +14,7 @@ import argparse
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -51,8 +52,9 @@ def main() -> None:
         ax.set_ylim(0, 100)
         ax.grid(alpha=0.3)
     if a.logx:
-        ax_t.set_xscale("log")
-        ax_f.set_xscale("log")
+        for ax in (ax_t, ax_f):
+            ax.set_xscale("log")
+            ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())  # minor labels overlap
     else:
         ax_f.xaxis.set_major_formatter(lambda x, _: f"{x / 1000:.0f}k")
     ax_f.legend(fontsize=7)
