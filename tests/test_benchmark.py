@@ -98,6 +98,12 @@ def test_eval_config_replaces_worlds_and_maps_turn_them_off():
     assert arena.map == "arena" and arena.worlds.families == {}
     with pytest.raises(ValueError, match="not both"):
         eval_config(trained, map="arena", worlds={"difficulty": 0.5})
+    # training's shares of easier episodes never reach evaluation: each cell plays its own difficulty
+    mixed = NavConfig.from_dict({"worlds": {"families": {"rooms": 1.0}, "curriculum": True, "max_difficulty": 0.8,
+                                            "anywhere_goals": 0.3, "below_level": 0.5}})
+    for ev in (eval_config(mixed), eval_config(mixed, worlds={"families": {"forest": 1.0}, "difficulty": 0.5})):
+        assert (ev.worlds.anywhere_goals, ev.worlds.below_level) == (0.0, 0.0)
+    assert eval_config(mixed).worlds.difficulty == 0.8
 
 
 @pytest.mark.parametrize("args, message", [

@@ -68,7 +68,9 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
 
     With procedural worlds and ``anywhere``, the difficulty is fixed too: at
     ``worlds.max_difficulty`` when training used the difficulty curriculum (its target),
-    else at ``worlds.difficulty``.
+    else at ``worlds.difficulty``. Evaluation plays every episode at that difficulty with its own
+    goal band: ``worlds.anywhere_goals`` and ``worlds.below_level`` (training's shares of easier
+    episodes) are set to 0 unless ``worlds`` gives them.
 
     ``randomize_off`` switches domain randomisation off: True for every parameter, or the
     names of those to fix (``cfg.randomize``'s keys), which then take ``robot``/``lidar``'s values.
@@ -80,8 +82,10 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
     if map is not None:
         over["map"] = map
         d["worlds"] = {**d["worlds"], "families": {}, "movers": {}}  # the map's own moving_circles apply
+    # training-only shares of easier episodes: evaluation plays each difficulty's own goal band
+    plain = {"anywhere_goals": 0.0, "below_level": 0.0}
     if worlds is not None:
-        d["worlds"] = {**d["worlds"], **worlds, "curriculum": False}
+        d["worlds"] = {**d["worlds"], **plain, **worlds, "curriculum": False}
     if randomize_off:
         names = list(d["randomize"]) if randomize_off is True else list(randomize_off)
         unknown = [k for k in names if k not in d["randomize"]]
@@ -92,7 +96,8 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
         over["curriculum"] = {"mode": "off"}
         w = d["worlds"]
         if w["families"]:
-            over["worlds"] = {"curriculum": False, "difficulty": w["max_difficulty"] if w["curriculum"] else w["difficulty"]}
+            over["worlds"] = {"curriculum": False, "difficulty": w["max_difficulty"] if w["curriculum"] else w["difficulty"],
+                              **(plain if worlds is None else {})}
     return NavConfig.from_dict(merge(d, over))
 
 
