@@ -24,7 +24,7 @@ import _common as C  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    return apg_lidar.main(argv, name="apg_line", task="line")
+    return apg_lidar.main(argv, name="apg_line")
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ from torchnav.policy import Actor  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", task="line", action_mode="discrete")
+    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", action_mode="discrete")
     tc, env, device = t.cfg.train, t.env, t.device
     table = torch.tensor(t.task.config.action.discrete_set, dtype=torch.float32)
 

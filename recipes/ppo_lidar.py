@@ -53,9 +53,9 @@ def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
     return obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
 
 
-def main(argv: list[str], name: str = "ppo_lidar", task: str = "nav") -> dict:
-    """Train; ``name`` picks ``configs/<name>.yaml`` and ``task`` the task protocol (``ppo_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", task=task, action_mode="continuous")
+def main(argv: list[str], name: str = "ppo_lidar") -> dict:
+    """Train; ``name`` picks ``configs/<name>.yaml``, whose ``task`` section picks the task (``ppo_line.py`` reuses this)."""
+    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", action_mode="continuous")
     tc, env, device = t.cfg.train, t.env, t.device
 
     # -- networks: both normalise observations with statistics of a random-action rollout -----

@@ -21,7 +21,7 @@ import _common as C  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    return ppo_lidar.main(argv, name="ppo_line", task="line")
+    return ppo_lidar.main(argv, name="ppo_line")
 
 
 if __name__ == "__main__":
