@@ -1,7 +1,7 @@
 """PPO on batched lidar navigation, with TorchRL.
 
     python recipes/ppo_lidar.py                        # arena, 4096 envs, CPU, under a minute
-    python recipes/ppo_lidar.py env.map=warehouse train.total_frames=20000000
+    python recipes/ppo_lidar.py task.map=warehouse train.total_frames=20000000
     python recipes/ppo_lidar.py --resume               # continue the newest run
 
 Reads top to bottom: config and env (``_train.Trainer``) -> observation statistics

@@ -1,7 +1,7 @@
 """PPO on batched line following with a photodiode array, with TorchRL.
 
     python recipes/ppo_line.py                         # course track, 256 envs, CPU, a few minutes
-    python recipes/ppo_line.py env.track=oval train.total_frames=1000000
+    python recipes/ppo_line.py task.track=oval train.total_frames=1000000
     python recipes/ppo_line.py --resume                # continue the newest run
 
 The same PPO as ``ppo_lidar.py`` (tanh Gaussian, observation normalisation, GAE,
