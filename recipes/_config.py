@@ -305,46 +305,22 @@ class LineRecipe(Recipe):
     eval: LineEvalConfig
 
 
-@dataclass(frozen=True)
-class TD3Lidar(NavRecipe):
-    train: TD3Train
-
-
-@dataclass(frozen=True)
-class SACLidar(NavRecipe):
-    train: SACTrain
-
-
-@dataclass(frozen=True)
-class PPOLidar(NavRecipe):
-    train: PPOTrain
-
-
-@dataclass(frozen=True)
-class APGLidar(NavRecipe):
-    train: APGTrain
-    smooth: NavSmoothConfig
-
-
-@dataclass(frozen=True)
-class PPOLine(LineRecipe):
-    train: PPOTrain
-
-
-@dataclass(frozen=True)
-class DQNLine(LineRecipe):
-    train: DQNTrain
-
-
-@dataclass(frozen=True)
-class APGLine(LineRecipe):
-    train: APGTrain
-    smooth: LineSmoothConfig
+def _recipe(name: str, base: type[Recipe], train: type[Train], smooth: type[SmoothConfig] | None = None) -> type[Recipe]:
+    """``base`` with its algorithm's ``train`` class (and APG's ``smooth`` section)."""
+    fields = [("train", train)] + ([("smooth", smooth)] if smooth else [])
+    return dataclasses.make_dataclass(name, fields, bases=(base,), frozen=True, namespace={"__module__": __name__})
 
 
 # recipe (recipes/<name>.py, configs/<name>.yaml) -> its config class
-RECIPES: dict[str, type[Recipe]] = {"td3_lidar": TD3Lidar, "sac_lidar": SACLidar, "ppo_lidar": PPOLidar, "apg_lidar": APGLidar,
-                                    "ppo_line": PPOLine, "dqn_line": DQNLine, "apg_line": APGLine}
+RECIPES: dict[str, type[Recipe]] = {
+    "td3_lidar": _recipe("TD3Lidar", NavRecipe, TD3Train),
+    "sac_lidar": _recipe("SACLidar", NavRecipe, SACTrain),
+    "ppo_lidar": _recipe("PPOLidar", NavRecipe, PPOTrain),
+    "apg_lidar": _recipe("APGLidar", NavRecipe, APGTrain, NavSmoothConfig),
+    "ppo_line": _recipe("PPOLine", LineRecipe, PPOTrain),
+    "dqn_line": _recipe("DQNLine", LineRecipe, DQNTrain),
+    "apg_line": _recipe("APGLine", LineRecipe, APGTrain, LineSmoothConfig),
+}
 
 
 # --------------------------------------------------------------------------- files and command lines

@@ -182,3 +182,23 @@ def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict:
         else:
             out[k] = v
     return out
+
+
+C = TypeVar("C", bound="TaskConfig")
+
+
+class TaskConfig:
+    """The base of the task configs (``NavConfig``, ``LineConfig``): strict construction from a
+    dict, and the checks of their ``__post_init__``."""
+
+    @classmethod
+    def from_dict(cls: type[C], data: Mapping[str, Any] | None = None, where: str = "env") -> C:
+        return from_dict(cls, data, where)
+
+    @staticmethod
+    def require(checks: list[tuple[bool, str]]) -> None:
+        """Raise a ConfigError with the message of the first failed ``(ok, message)`` check."""
+        for ok, msg in checks:
+            if not ok:
+                raise ConfigError(msg)
+
