@@ -1,5 +1,5 @@
 """Builders shared by the recipes: run directories, logging, checkpoints, threads, signals; the config
-functions of ``_config`` (the recipes' config classes) are reached through here too.
+functions of ``_config_load`` (reading the config classes of ``_config``) are reached through here too.
 
 Kept out of ``torchnav/`` on purpose: the package never imports recipes.
 """
@@ -18,9 +18,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 import torch
-from _config import (  # noqa: F401  (the recipes reach the config functions through this module)
-    LOGGER_BACKENDS, RECIPES, RESUME_CHANGES, Recipe, check_backend, check_threads, load_config, parse_cli, resumed_config, save_config,
-)
+from _config import LOGGER_BACKENDS, RECIPES, Recipe, check_backend, check_threads  # noqa: F401
+from _config_load import RESUME_CHANGES, load_config, parse_cli, resumed_config, save_config  # noqa: F401  (the recipes use them from here)
 
 from torchnav.checkpoint import load_checked, save_checked
 from torchnav.config import ConfigError, to_dict

@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "recipes"))
 
 import _config as K  # noqa: E402
+import _config_load as L  # noqa: E402
 
 from torchnav.config import ConfigError, to_dict  # noqa: E402
 from torchnav.tasks import LineConfig, NavConfig  # noqa: E402
@@ -33,7 +34,7 @@ def test_every_config_file_has_its_recipe():
 @pytest.mark.parametrize("config,recipe", sorted(SHIPPED.items()))
 def test_shipped_yaml_is_its_class_and_round_trips(config, recipe, tmp_path):
     path = ROOT / "recipes" / "configs" / f"{config}.yaml"
-    cfg = K.load_config(recipe, ["--config", str(path)])
+    cfg = L.load_config(recipe, ["--config", str(path)])
     assert type(cfg) is K.RECIPES[recipe]
     assert isinstance(cfg.task, LineConfig if recipe.endswith("_line") else NavConfig)
     # one to one: each key of the file is a field, and each value is the field's value
@@ -48,8 +49,8 @@ def test_shipped_yaml_is_its_class_and_round_trips(config, recipe, tmp_path):
             assert to_dict(obj) == node or to_dict(obj) == to_dict(node), key
 
     same(data, cfg, config)
-    K.save_config(cfg, tmp_path)
-    assert K.load_config(recipe, ["--config", str(tmp_path / "config.yaml")]) == cfg
+    L.save_config(cfg, tmp_path)
+    assert L.load_config(recipe, ["--config", str(tmp_path / "config.yaml")]) == cfg
 
 
 def test_every_field_declares_what_it_allows():
@@ -92,7 +93,7 @@ def test_bad_key_type_or_range_is_named_before_the_run_directory(tmp_path, recip
                                      ("reward.weights.step=-0.01", "task.reward.weights.step"), ("env.max_steps=100", "task.max_steps")])
 def test_a_key_of_the_old_layout_names_its_new_key(old, new):
     with pytest.raises(ConfigError, match=f"{old.split('=')[0]} is now {new}"):
-        K.load_config("td3_lidar", [old])
+        L.load_config("td3_lidar", [old])
 
 
 def test_an_old_layout_file_is_refused_and_an_old_saved_run_migrates(tmp_path):
@@ -101,8 +102,8 @@ def test_an_old_layout_file_is_refused_and_an_old_saved_run_migrates(tmp_path):
     path = tmp_path / "old.yaml"
     path.write_text(yaml.safe_dump(old))
     with pytest.raises(ConfigError, match="env.max_steps is now task.max_steps; env.track is now task.track; reward is now task.reward"):
-        K.load_config("ppo_line", ["--config", str(path)])
-    cfg, changes = K.resumed_config(old, ["train.total_frames=2000000"], "ppo_line", tmp_path)
+        L.load_config("ppo_line", ["--config", str(path)])
+    cfg, changes = L.resumed_config(old, ["train.total_frames=2000000"], "ppo_line", tmp_path)
     assert (cfg.task.track, cfg.task.max_steps, cfg.task.reward.weights) == ("oval", 900, {"lap": 1.0})
     assert changes == ["train.total_frames: 1000000 -> 2000000"] and cfg.logger.run_dir == str(tmp_path)
 
@@ -113,15 +114,15 @@ def test_a_file_missing_a_key_names_it(tmp_path):
     path = tmp_path / "partial.yaml"
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(ConfigError) as e:
-        K.load_config("td3_lidar", ["--config", str(path)])
+        L.load_config("td3_lidar", ["--config", str(path)])
     assert "train.policy_delay: missing" in str(e.value) and "eval: missing" in str(e.value)
 
 
 def test_command_line_values_read_as_yaml():
-    assert K.parse_override("train.lr=1e-3") == ("train.lr", 0.001)
-    assert K.parse_override("train.hidden=[16,16]") == ("train.hidden", [16, 16])
-    assert K.parse_override("task.curriculum.mode=off") == ("task.curriculum.mode", "off")  # not YAML 1.1's false
-    assert K.parse_override("logger.run_dir=null") == ("logger.run_dir", None)
-    assert K.parse_override("eval.target_success=nan")[1] != K.parse_override("eval.target_success=nan")[1]  # a float nan
+    assert L.parse_override("train.lr=1e-3") == ("train.lr", 0.001)
+    assert L.parse_override("train.hidden=[16,16]") == ("train.hidden", [16, 16])
+    assert L.parse_override("task.curriculum.mode=off") == ("task.curriculum.mode", "off")  # not YAML 1.1's false
+    assert L.parse_override("logger.run_dir=null") == ("logger.run_dir", None)
+    assert L.parse_override("eval.target_success=nan")[1] != L.parse_override("eval.target_success=nan")[1]  # a float nan
     with pytest.raises(ConfigError, match="train.hidden=\\[16: not a readable value"):
-        K.parse_override("train.hidden=[16")
+        L.parse_override("train.hidden=[16")
