@@ -1,7 +1,10 @@
 """Strict construction of frozen config dataclasses from plain dicts (YAML, CLI).
 
 Unknown keys are an error that names the key and lists the valid ones (after
-VMAS's ``check_kwargs_consumed``); wrong types are an error that names the key.
+VMAS's ``check_kwargs_consumed``); wrong types are an error that names the key; a
+field without a default must be set; a field made with :func:`checked` declares what
+it allows, and a value outside it is an error naming the key, the value and what is
+allowed. ``from_dict`` reports every problem of a config in one ConfigError.
 """
 
 from __future__ import annotations
