@@ -5,7 +5,7 @@ A recipe builds its networks and loss, names what its checkpoint holds beyond th
 RNG and counters (``Trainer.restore(modules)``), then hands ``Trainer.train`` a collector
 (``Trainer.collector(policy)``) and an ``update(batch) -> {name: loss}`` function.
 What differs between tasks (env, evaluation, recording, progress fields) is the task
-protocol's (``torchnav.protocol``): ``task="nav"`` or ``task="line"`` picks it.
+protocol's (``torchnav.protocol``), picked by the config's ``task`` section (``NavConfig`` or ``LineConfig``).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ RECENT_EPISODES = 500  # training episodes behind the train/<outcome>_rate figur
 class Trainer:
     """Setup and loop of one recipe run; see the module docstring."""
 
-    def __init__(self, name: str, argv: list[str], ckpt_format: str, task: str = "nav", action_mode: str | None = None) -> None:
+    def __init__(self, name: str, argv: list[str], ckpt_format: str, action_mode: str | None = None) -> None:
         self.name, self.ckpt_format = name, ckpt_format
         cfg = C.load_config(name, argv)
         resume_dir = C.find_resume_dir(cfg, name)
@@ -42,18 +42,16 @@ class Trainer:
             if self.ckpt.get("format") != ckpt_format:
                 raise C.ConfigError(f"{resume_dir / 'checkpoint.pt'} is not a {name} checkpoint (format {self.ckpt.get('format')!r})")
             cfg, changes = C.resumed_config(self.ckpt["config"], argv, name, resume_dir)
-            cfg.logger.run_dir = str(resume_dir)
             for line in changes:
                 print(f"resume: {line}")
             if int(self.ckpt["counters"]["frames"]) >= int(cfg.train.total_frames):
                 print(f"resume: the run already has {int(self.ckpt['counters']['frames']):,} of train.total_frames={int(cfg.train.total_frames):,} "
                       "frames; raise train.total_frames to train on")
         self.cfg = cfg
-        C.check_logger(cfg)
         self.threads = C.ThreadGovernor(cfg.threads)
         C.seed_everything(cfg.seed)
         self.device = torch.device(cfg.device)
-        self.task = C.task_protocol(cfg, task)
+        self.task = C.task_protocol(cfg)
         if action_mode is not None and self.task.config.action.mode != action_mode:
             raise C.ConfigError(f"{name} needs task.action.mode={action_mode}, got {self.task.config.action.mode!r}")
         self.run = C.make_run_dir(cfg, name, resuming=resume_dir is not None)

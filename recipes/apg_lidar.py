@@ -59,9 +59,9 @@ from torchnav.apg import horizon_loss, lambda_returns, make_smooth, rollout  # n
 from torchnav.policy import Actor  # noqa: E402
 
 
-def main(argv: list[str], name: str = "apg_lidar", task: str = "nav") -> dict:
-    """Train; ``name`` picks ``configs/<name>.yaml`` and ``task`` the task protocol (``apg_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", task=task, action_mode="continuous")
+def main(argv: list[str], name: str = "apg_lidar") -> dict:
+    """Train; ``name`` picks ``configs/<name>.yaml``, whose ``task`` section picks the task (``apg_line.py`` reuses this)."""
+    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", action_mode="continuous")
     tc, env, device = t.cfg.train, t.env, t.device
     horizon, gamma, lmbda, tau = int(tc.horizon), float(tc.gamma), float(tc.lmbda), float(tc.tau)
 

@@ -1,7 +1,7 @@
 """Analytic policy gradients through the differentiable simulator on the line-following task.
 
     python recipes/apg_line.py                        # the course track, 64 envs, horizons of 32 steps, CPU
-    python recipes/apg_line.py env.track=oval smooth.path=-1.0
+    python recipes/apg_line.py task.track=oval smooth.path=-1.0
 
 The same algorithm as ``apg_lidar.py`` (SHAC-style: backpropagation through
 ``LineTask.step`` over a short horizon, a critic bootstrapping its end): the floor
@@ -24,7 +24,7 @@ import _common as C  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    return apg_lidar.main(argv, name="apg_line", task="line")
+    return apg_lidar.main(argv, name="apg_line")
 
 
 if __name__ == "__main__":

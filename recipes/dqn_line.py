@@ -1,7 +1,7 @@
 """DQN on batched line following with a discrete set of wheel commands, with TorchRL.
 
     python recipes/dqn_line.py                         # course track, 7 wheel-speed pairs, CPU
-    python recipes/dqn_line.py env.track=oval "task.action.discrete_set=[[1,1],[1,0.3],[0.3,1]]"
+    python recipes/dqn_line.py task.track=oval "task.action.discrete_set=[[1,1],[1,0.3],[0.3,1]]"
     python recipes/dqn_line.py --resume                # continue the newest run
 
 Reads top to bottom: config and env (``LineEnv`` with ``action.mode=discrete``,
@@ -33,7 +33,7 @@ from torchnav.policy import Actor  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", task="line", action_mode="discrete")
+    t = Trainer("dqn_line", argv, ckpt_format="torchnav-dqn-line-v1", action_mode="discrete")
     tc, env, device = t.cfg.train, t.env, t.device
     table = torch.tensor(t.task.config.action.discrete_set, dtype=torch.float32)
 

@@ -1,7 +1,7 @@
 """PPO on batched lidar navigation, with TorchRL.
 
     python recipes/ppo_lidar.py                        # arena, 4096 envs, CPU, under a minute
-    python recipes/ppo_lidar.py env.map=warehouse train.total_frames=20000000
+    python recipes/ppo_lidar.py task.map=warehouse train.total_frames=20000000
     python recipes/ppo_lidar.py --resume               # continue the newest run
 
 Reads top to bottom: config and env (``_train.Trainer``) -> observation statistics
@@ -53,9 +53,9 @@ def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
     return obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
 
 
-def main(argv: list[str], name: str = "ppo_lidar", task: str = "nav") -> dict:
-    """Train; ``name`` picks ``configs/<name>.yaml`` and ``task`` the task protocol (``ppo_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", task=task, action_mode="continuous")
+def main(argv: list[str], name: str = "ppo_lidar") -> dict:
+    """Train; ``name`` picks ``configs/<name>.yaml``, whose ``task`` section picks the task (``ppo_line.py`` reuses this)."""
+    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", action_mode="continuous")
     tc, env, device = t.cfg.train, t.env, t.device
 
     # -- networks: both normalise observations with statistics of a random-action rollout -----

@@ -1,7 +1,7 @@
 """PPO on batched line following with a photodiode array, with TorchRL.
 
     python recipes/ppo_line.py                         # course track, 256 envs, CPU, a few minutes
-    python recipes/ppo_line.py env.track=oval train.total_frames=1000000
+    python recipes/ppo_line.py task.track=oval train.total_frames=1000000
     python recipes/ppo_line.py --resume                # continue the newest run
 
 The same PPO as ``ppo_lidar.py`` (tanh Gaussian, observation normalisation, GAE,
@@ -21,7 +21,7 @@ import _common as C  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    return ppo_lidar.main(argv, name="ppo_line", task="line")
+    return ppo_lidar.main(argv, name="ppo_line")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """SAC on batched lidar navigation, with TorchRL.
 
     python recipes/sac_lidar.py                        # arena, 64 envs, CPU
-    python recipes/sac_lidar.py env.map=warehouse train.total_frames=500000
+    python recipes/sac_lidar.py task.map=warehouse train.total_frames=500000
     python recipes/sac_lidar.py --resume               # continue the newest run
 
 Reads top to bottom: config and env (``_train.Trainer``) -> a tanh-squashed

@@ -1,6 +1,6 @@
 """Sweeps: a grid of overrides x seeds of one recipe, launched through submitit, then one table.
 
-    python recipes/sweep.py run td3_lidar --seeds 0 1 2 --grid curriculum.growth=0.004,0.008
+    python recipes/sweep.py run td3_lidar --seeds 0 1 2 --grid task.curriculum.growth=0.004,0.008
     python recipes/sweep.py run ppo_lidar --seeds 0 1 --grid train.lr=0.001,0.0005 --set train.total_frames=2000000 --workers 2
     python recipes/sweep.py run td3_lidar --seeds 0 1 2 --grid ... --cluster slurm --slurm-partition gpu --timeout-min 120
     python recipes/sweep.py aggregate runs/sweep_td3_lidar_<time>

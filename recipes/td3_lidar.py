@@ -1,7 +1,7 @@
 """TD3 on batched lidar navigation, with TorchRL's collector and replay buffer.
 
     python recipes/td3_lidar.py                       # arena, classic curriculum, CPU, about 2 minutes
-    python recipes/td3_lidar.py env.map=warehouse env.num_envs=256 curriculum.growth=0.01
+    python recipes/td3_lidar.py task.map=warehouse env.num_envs=256 task.curriculum.growth=0.01
     python recipes/td3_lidar.py --resume              # continue the newest run
 
 Reads top to bottom: config and env (``_train.Trainer``) -> actor, twin critics and

@@ -44,8 +44,8 @@ BAD_OVERRIDES = [
     ("td3_lidar", "env.compile_step=maybe", "env.compile_step"),
     ("td3_lidar", "logger.progress=2", "logger.progress=2: must be true or false"),
     ("td3_lidar", "checkpoint.interval_frames=0", "checkpoint.interval_frames=0"),
-    ("td3_lidar", "curriculum.growth=fast", "curriculum.growth='fast'"),
-    ("td3_lidar", "env.map=nonexistent", "unknown map 'nonexistent'"),
+    ("td3_lidar", "task.curriculum.growth=fast", "task.curriculum.growth: expected a number, got str 'fast'"),
+    ("td3_lidar", "task.map=nonexistent", "unknown map 'nonexistent'"),
     ("td3_lidar", "task.lidar.n_rays=0", "lidar.n_rays"),
     ("td3_lidar", "threads=0", "threads must be 'auto' or an int >= 1"),
     ("ppo_lidar", "train.minibatch_size=100000", "train.minibatch_size=100000 must be at most train.frames_per_batch"),
@@ -54,7 +54,7 @@ BAD_OVERRIDES = [
     ("ppo_lidar", "train.activation=gelu", "train.activation='gelu': must be relu or tanh"),
     ("sac_lidar", "train.lr_alpha=0", "train.lr_alpha=0"),
     ("dqn_line", "train.eps_end=1.5", "train.eps_end=1.5"),
-    ("ppo_line", "env.track=nope", "unknown track 'nope'"),
+    ("ppo_line", "task.track=nope", "unknown track 'nope'"),
     ("ppo_line", "eval.laps=0", "eval.laps=0"),
 ]
 
@@ -154,7 +154,7 @@ def test_recipe_refuses_to_resume_a_damaged_checkpoint(tmp_path):
     from torchnav.checkpoint import CheckpointError
 
     td3 = importlib.import_module("td3_lidar")
-    tiny = ["threads=1", "env.num_envs=16", "env.max_steps=60", "eval.interval_frames=0", "eval.final_episodes=4", "eval.record_episodes=0",
+    tiny = ["threads=1", "env.num_envs=16", "task.max_steps=60", "eval.interval_frames=0", "eval.final_episodes=4", "eval.record_episodes=0",
             "checkpoint.interval_frames=128", "logger.progress=false", "train.frames_per_batch=128", "train.init_random_frames=128",
             "train.updates_per_batch=2", "train.batch_size=32", "train.hidden=[16,16]", "train.buffer_size=1000"]
     run = tmp_path / "run"
@@ -167,7 +167,7 @@ def test_recipe_refuses_to_resume_a_damaged_checkpoint(tmp_path):
 
 # --------------------------------------------------------------------------- runs and resume
 
-TINY_TD3 = ["threads=1", "env.num_envs=16", "env.max_steps=60", "eval.interval_frames=0", "eval.final_episodes=4", "eval.record_episodes=0",
+TINY_TD3 = ["threads=1", "env.num_envs=16", "task.max_steps=60", "eval.interval_frames=0", "eval.final_episodes=4", "eval.record_episodes=0",
             "checkpoint.interval_frames=128", "logger.progress=false", "train.frames_per_batch=128", "train.init_random_frames=128",
             "train.updates_per_batch=2", "train.batch_size=32", "train.hidden=[16,16]", "train.buffer_size=1000"]
 
@@ -198,10 +198,11 @@ def test_resume_without_a_path_takes_only_this_recipes_runs(tmp_path):
 
 
 def test_run_directories_are_never_shared(tmp_path):
-    import _common
-    from omegaconf import OmegaConf
+    from types import SimpleNamespace
 
-    cfg = OmegaConf.create({"seed": 0, "logger": {"root": str(tmp_path), "run_dir": None}})
+    import _common
+
+    cfg = SimpleNamespace(seed=0, logger=SimpleNamespace(root=str(tmp_path), run_dir=None))
     runs = {_common.make_run_dir(cfg, "td3_lidar") for _ in range(3)}  # same second, same seed
     assert len(runs) == 3 and all(r.is_dir() for r in runs)
     taken = tmp_path / "taken"

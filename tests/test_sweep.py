@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("submitit")
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "recipes"))
 
-TINY = ["threads=1", "env.num_envs=16", "env.max_steps=60", "eval.interval_frames=128", "eval.episodes=8", "eval.final_episodes=16",
+TINY = ["threads=1", "env.num_envs=16", "task.max_steps=60", "eval.interval_frames=128", "eval.episodes=8", "eval.final_episodes=16",
         "eval.record_episodes=0", "train.frames_per_batch=128", "train.init_random_frames=128", "train.updates_per_batch=2",
         "train.batch_size=32", "train.hidden=[16,16]", "train.buffer_size=1000", "train.total_frames=256"]
 
@@ -20,7 +20,7 @@ def test_sweep_runs_a_grid_in_parallel_and_aggregates(tmp_path, capsys):
     import sweep
 
     out = tmp_path / "sweep"
-    sweep.main(["run", "td3_lidar", "--seeds", "0", "1", "--grid", "curriculum.growth=0.004,0.008", "--set", *TINY,
+    sweep.main(["run", "td3_lidar", "--seeds", "0", "1", "--grid", "task.curriculum.growth=0.004,0.008", "--set", *TINY,
                 "--workers", "2", "--out", str(out)])
     rows = json.loads((out / "sweep.json").read_text())
     assert sorted(r["setting"] for r in rows) == ["growth=0.004", "growth=0.008"]

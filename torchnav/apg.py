@@ -18,13 +18,13 @@ from .config import ConfigError
 def _contact(smooth, env) -> Callable[[Any], Tensor]:
     """Navigation: ``smooth.contact * relu(1 - clearance / smooth.contact_margin)``: 0 with ``contact_margin``
     m of clearance or more, ``smooth.contact`` at contact, growing further when penetrating."""
-    weight, margin = float(smooth["contact"]), float(smooth["contact_margin"])
+    weight, margin = float(smooth.contact), float(smooth.contact_margin)
     return lambda state: weight * torch.relu(1.0 - state.sim.clearance / margin)
 
 
 def _path(smooth, env) -> Callable[[Any], Tensor]:
     """Line following: ``smooth.path * (distance from the lap path / the distance that ends the episode)^2``."""
-    weight, limit = float(smooth["path"]), float(env.cfg.termination.max_path_distance)
+    weight, limit = float(smooth.path), float(env.cfg.termination.max_path_distance)
     return lambda state: weight * (state.path_dist / limit).square()
 
 

@@ -1,7 +1,10 @@
 """Strict construction of frozen config dataclasses from plain dicts (YAML, CLI).
 
 Unknown keys are an error that names the key and lists the valid ones (after
-VMAS's ``check_kwargs_consumed``); wrong types are an error that names the key.
+VMAS's ``check_kwargs_consumed``); wrong types are an error that names the key; a
+field without a default must be set; a field made with :func:`checked` declares what
+it allows, and a value outside it is an error naming the key, the value and what is
+allowed. ``from_dict`` reports every problem of a config in one ConfigError.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ import difflib
 import math
 import types
 import typing
-from typing import Any, Mapping, TypeVar
+from typing import Any, Callable, Mapping, TypeVar
 
 T = TypeVar("T")
 
@@ -77,28 +80,89 @@ def _check_type(value: Any, tp: Any, where: str) -> Any:
     return value
 
 
+def checked(test: Callable[[Any], bool], allowed: str) -> Any:
+    """A required dataclass field whose value must pass ``test`` (its type included): ``from_dict``
+    reports a failure as ``key=value: must be <allowed>``, and any non-finite number as ``must be finite``."""
+    return dataclasses.field(metadata={"check": (test, allowed)})
+
+
+def is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def is_number(v: Any) -> bool:
+    return (is_int(v) or isinstance(v, float)) and math.isfinite(v)
+
+
+def raise_problems(problems: list[str]) -> None:
+    """One ConfigError for every problem found (nothing when there is none)."""
+    if problems:
+        raise ConfigError(problems[0] if len(problems) == 1 else "invalid config:\n  " + "\n  ".join(problems))
+
+
+def _key(where: str, k: Any) -> str:
+    return f"{where}.{k}" if where else str(k)
+
+
+def _build(cls: type[T], data: Any, where: str, problems: list[str], top: bool) -> T | None:
+    """``cls`` from ``data``, or None after appending every problem found to ``problems``."""
+    if not isinstance(data, Mapping):
+        problems.append(f"{where}: expected a mapping, got {type(data).__name__} {data!r}")
+        return None
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    found = len(problems)
+    for k in data:
+        if k not in fields:
+            close = difflib.get_close_matches(str(k), list(fields), n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            problems.append(f"{where + ': ' if where else ''}unknown key '{k}'{hint}; valid keys: {', '.join(fields)}")
+    kwargs = {}
+    for name, f in fields.items():
+        key, tp = _key(where, name), hints[name]
+        if name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                problems.append(f"{key}: missing (no default: every file of this config sets it)")
+            continue
+        value, rule = data[name], f.metadata.get("check")
+        if rule is not None:
+            if isinstance(value, float) and not math.isfinite(value):
+                problems.append(f"{key}={value!r}: must be finite")
+                continue
+            if not rule[0](value):
+                problems.append(f"{key}={value!r}: must be {rule[1]}")
+                continue
+        if dataclasses.is_dataclass(tp) and not isinstance(value, tp):
+            sub = _build(tp, value, key, problems, top=False)
+            if sub is not None:
+                kwargs[name] = sub
+            continue
+        try:
+            kwargs[name] = _check_type(value, tp, key)
+        except ConfigError as e:
+            problems.append(str(e))
+    if len(problems) > found:
+        return None
+    try:
+        return cls(**kwargs)
+    except ConfigError as e:  # the class's own checks (__post_init__) name their keys
+        problems.append(str(e) if top or str(e).startswith(where) else f"{where}: {e}")
+    except (ValueError, TypeError) as e:
+        problems.append(f"{where}: {e}")
+    return None
+
+
 def from_dict(cls: type[T], data: Mapping[str, Any] | None, where: str = "config") -> T:
     """Build dataclass ``cls`` from ``data``, recursively, rejecting unknown keys and wrong types.
 
-    Missing keys take the dataclass defaults. Errors name the dotted key path
-    starting at ``where``.
+    Missing keys take the dataclass defaults (a field without one must be set); a field made with
+    :func:`checked` must pass its test. Every problem is reported at once, each naming its dotted
+    key starting at ``where`` (``""``: none).
     """
-    data = dict(data or {})
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
-    unknown = [k for k in data if k not in fields]
-    if unknown:
-        k = unknown[0]
-        close = difflib.get_close_matches(str(k), list(fields), n=1)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
-        raise ConfigError(f"{where}: unknown key '{k}'{hint}; valid keys: {', '.join(fields)}")
-    kwargs = {k: _check_type(v, hints[k], f"{where}.{k}") for k, v in data.items()}
-    try:
-        return cls(**kwargs)
-    except ConfigError:
-        raise
-    except (ValueError, TypeError) as e:
-        raise ConfigError(f"{where}: {e}") from e
+    problems: list[str] = []
+    obj = _build(cls, dict(data or {}), where, problems, top=True)
+    raise_problems(problems)
+    return obj  # type: ignore[return-value]
 
 
 def to_dict(obj: Any) -> Any:
@@ -121,3 +185,23 @@ def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict:
         else:
             out[k] = v
     return out
+
+
+C = TypeVar("C", bound="TaskConfig")
+
+
+class TaskConfig:
+    """The base of the task configs (``NavConfig``, ``LineConfig``): strict construction from a
+    dict, and the checks of their ``__post_init__``."""
+
+    @classmethod
+    def from_dict(cls: type[C], data: Mapping[str, Any] | None = None, where: str = "env") -> C:
+        return from_dict(cls, data, where)
+
+    @staticmethod
+    def require(checks: list[tuple[bool, str]]) -> None:
+        """Raise a ConfigError with the message of the first failed ``(ok, message)`` check."""
+        for ok, msg in checks:
+            if not ok:
+                raise ConfigError(msg)
+

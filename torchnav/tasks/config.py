@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from ..config import ConfigError, from_dict
+from ..config import ConfigError, TaskConfig
 from ..sim import RANDOMIZED, CameraParams, ImuParams, LidarParams, SimParams
 from ..sim.randomize import check_ranges
 
@@ -184,7 +184,7 @@ class WorldsConfig:
 
 
 @dataclass(frozen=True)
-class NavConfig:
+class NavConfig(TaskConfig):
     map: str = "arena"  # shipped map name or path to a map YAML
     max_steps: int = 500  # steps before truncation
     goal_tolerance: float = 0.3  # m, success when the robot centre is this close to the goal
@@ -229,9 +229,7 @@ class NavConfig:
             (all(v >= 0 for v in w.families.values()) and (not w.families or sum(w.families.values()) > 0),
              f"worlds.families weights must be >= 0 with a positive sum, got {w.families}"),
         ]
-        for ok, msg in checks:
-            if not ok:
-                raise ConfigError(msg)
+        self.require(checks)
         for name in w.families:
             _check_family(name)
         if w.mover_spec() is not None and not w.families:
@@ -242,9 +240,6 @@ class NavConfig:
         except ValueError as e:
             raise ConfigError(str(e)) from None
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None = None, where: str = "env") -> "NavConfig":
-        return from_dict(cls, data, where)
 
     def sim_params(self) -> SimParams:
         r, li, im, ca = self.robot, self.lidar, self.imu, self.camera

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
 
-from ..config import ConfigError, from_dict
+from ..config import ConfigError, TaskConfig
 from ..sim import LidarParams, SimParams
 from ..sim.floor import FloorSensorParams
 
@@ -92,7 +91,7 @@ class LineResetConfig:
 
 
 @dataclass(frozen=True)
-class LineConfig:
+class LineConfig(TaskConfig):
     track: str = "course"  # shipped track (course, loop, oval) or path to a track YAML
     max_steps: int = 1000  # steps before truncation (50 s at dt = 0.05)
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
@@ -119,18 +118,13 @@ class LineConfig:
             (self.reset.lateral_noise >= 0 and self.reset.heading_noise >= 0, "reset noise must be >= 0"),
             (self.distance_sensor.max_range > 0, "distance_sensor.max_range must be > 0 m"),
         ]
-        for ok, msg in checks:
-            if not ok:
-                raise ConfigError(msg)
+        self.require(checks)
         for k in self.reward.weights:
             if k not in LINE_TERMS:
                 raise ConfigError(f"reward.weights: unknown term {k!r}; terms: {', '.join(LINE_TERMS)}")
         self.sim_params()
         self.sensor_params()
 
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None = None, where: str = "env") -> "LineConfig":
-        return from_dict(cls, data, where)
 
     def weights(self) -> dict[str, float]:
         """Reward weights: the defaults with ``reward.weights`` applied (zero weights dropped)."""
