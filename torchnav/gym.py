@@ -44,7 +44,7 @@ import torch
 from tensordict import TensorDict
 
 from .config import ConfigError
-from .envs import LineEnv, NavEnv, make_env, make_line_env
+from .envs import LineEnv, NavEnv, make_nav_env, make_line_env
 
 
 def _spaces(env: NavEnv | LineEnv) -> tuple[spaces.Box, spaces.Space]:
@@ -70,7 +70,7 @@ def _make(kind: str, num_envs: int | None, seed: int | None, device: str, kwargs
                               "vectorization_mode=\"vector_entry_point\")")
         num_envs = 1
     if kind == "navigation":
-        return make_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
+        return make_nav_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
     return make_line_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
 
 
@@ -197,7 +197,7 @@ class TorchnavEnv(gymnasium.Env):
 
 
 def navigation_env(seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
-    """``gymnasium.make("torchnav/Navigation-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_env``."""
+    """``gymnasium.make("torchnav/Navigation-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_nav_env``."""
     return TorchnavEnv(_make("navigation", None, seed, device, kwargs))
 
 

@@ -99,15 +99,15 @@ def max_delay(ranges: Mapping[str, tuple[float, float] | None]) -> int:
 
 
 def sample_env_params(ranges: Mapping[str, tuple[float, float] | None], params: SimParams, batch_size: int,
-                      gen: torch.Generator, like: Tensor) -> EnvParams:
+                      generator: torch.Generator, like: Tensor) -> EnvParams:
     """Per-env parameters drawn uniformly from ``ranges`` (name -> ``(min, max)``; missing or
     None: ``params``' value); ``delay`` uniformly among the whole steps of its range.
-    Every parameter draws from ``gen`` whether randomised or not, so switching one off
+    Every parameter draws from ``generator`` whether randomised or not, so switching one off
     leaves the others' draws unchanged."""
     check_ranges(ranges, params)
     out = nominal_env_params(params, batch_size, like).to_dict()
     for name in RANDOMIZED:
-        u = torch.rand(batch_size, generator=gen, dtype=like.dtype, device=gen.device).to(like.device)
+        u = torch.rand(batch_size, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
         r = ranges.get(name)
         if r is None:
             continue

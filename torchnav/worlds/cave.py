@@ -60,10 +60,10 @@ def rock_boxes(rock: Tensor, origin: float, slots: int) -> tuple[Tensor, Tensor]
     return boxes.reshape(b, -1, 5).gather(1, idx[..., None].expand(-1, -1, 5)) * valid[..., None], valid
 
 
-def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
+def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     """Caves at difficulties ``d`` ``(B,)``: the world and its bounds ``(B, 4)`` m."""
     b, like, dev = d.shape[0], d, d.device
-    rock = torch.rand((b, GRID, GRID), generator=gen, device=dev) < params(d)["fill"][:, None, None].float()
+    rock = torch.rand((b, GRID, GRID), generator=generator, device=dev) < params(d)["fill"][:, None, None].float()
     for _ in range(CA_STEPS):
         rock = smooth(rock)
     half = torch.full((b,), GRID * CELL / 2, dtype=like.dtype, device=dev)

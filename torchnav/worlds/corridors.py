@@ -40,7 +40,7 @@ def params(d: Tensor) -> dict[str, Tensor]:
     }
 
 
-def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
+def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     """Mazes at difficulties ``d`` ``(B,)``: the world and its bounds ``(B, 4)`` m."""
     p = params(d)
     b, like, dev = d.shape[0], d, d.device
@@ -50,8 +50,8 @@ def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
     cell_on = ((cells // m)[None] < n[:, None]) & ((cells % m)[None] < n[:, None])
     a, c, _ = grid_edges(m, m, dev)
     wall_on = cell_on[:, a] & cell_on[:, c]
-    tree = random_spanning_tree(a, c, wall_on, m * m, gen)
-    loops = uniform(0.0, 1.0, wall_on.shape, gen, like) < p["loop_prob"][:, None]
+    tree = random_spanning_tree(a, c, wall_on, m * m, generator)
+    loops = uniform(0.0, 1.0, wall_on.shape, generator, like) < p["loop_prob"][:, None]
     closed = wall_on & ~tree & ~loops  # (B, E): vertical walls (row-major), then horizontal ones
     nv = m * (m - 1)
     # Grid lines of wall units: vertical line c (between columns c and c+1) has one unit per row.
