@@ -1,31 +1,8 @@
 """Gymnasium interface: the batched tasks as a Gymnasium vector env and as a single env.
 
-``gymnasium`` is an optional dependency (``pip install "torchnav[gym]"``). Importing
-this module registers two ids::
-
-    torchnav/Navigation-v0   torchnav/LineFollowing-v0
-
-    env = gymnasium.make("torchnav/Navigation-v0", map="warehouse")            # one robot
-    envs = gymnasium.make_vec("torchnav/Navigation-v0", num_envs=1024,
-                              vectorization_mode="vector_entry_point")           # the batched sim
-
-Keyword arguments are those of :func:`torchnav.envs.make_env` (``map`` and nested
-``NavConfig`` sections such as ``curriculum={"mode": "fixed"}``) or of
-:func:`torchnav.envs.make_line_env` (``track`` and ``LineConfig`` sections).
-
-Both classes wrap the TorchRL env (:class:`~torchnav.envs.NavEnv` /
-:class:`~torchnav.envs.LineEnv`), so curriculum, rewards and resets are the same as
-in the recipes. Observations are ``float32`` numpy arrays; a continuous action is two
-values in [-1, 1], a discrete one (``action={"mode": "discrete"}``) an integer index.
-
-Autoreset (vector env): ``SAME_STEP``. When an env's episode ends in ``step``, the
-observation returned for it is already the first observation of its next episode;
-the last observation of the finished episode is in ``info["final_obs"]`` and its
-info in ``info["final_info"]`` (both masked by ``info["_final_obs"]`` /
-``info["_final_info"]``). Every step's ``info`` holds the task's outcome flags
-(``success`` and ``collision`` for navigation; ``on_line``, ``left_line``,
-``stalled``, ``collision``, ``lap_completed`` for line following) as bool arrays.
-"""
+Importing this module registers ``torchnav/Navigation-v0`` and ``torchnav/LineFollowing-v0``
+(keyword arguments those of :func:`torchnav.envs.make_nav_env` / :func:`torchnav.envs.make_line_env`).
+Needs the ``gym`` extra. Spaces, autoreset (``SAME_STEP``) and the ``info`` keys: docs/gymnasium.md."""
 
 from __future__ import annotations
 

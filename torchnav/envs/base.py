@@ -1,14 +1,8 @@
-"""What NavEnv and LineEnv share: the batch, the explicit generator, the action and done
-specs, the NaN-action check, resets and steps around a pure task, the current task state
-and the generator's checkpoint state.
+"""What NavEnv and LineEnv share: the batch, the explicit generator, the specs every task has,
+the action checks, resets and steps around a pure task, and the checkpoint state.
 
-A task env subclasses :class:`BatchedEnv`, builds its specs with ``_make_specs(**fields)``
-and fills in the hooks: ``_new_state(mask)`` (fresh episodes everywhere, or where ``mask``
-is True), ``_reset_view(state)`` (the observation and outcome flags right after a reset),
-``_after_step(out)`` (bookkeeping such as a curriculum), ``_task_outputs(state)`` (its
-outputs beyond those every task has) and ``_episode_stats(state)`` (its running episode
-statistics beyond ``return`` and ``length``).
-"""
+A task env subclasses :class:`BatchedEnv`, builds its specs with ``_make_specs(**fields)`` and
+fills in the hooks listed in docs/api.md (``torchnav.envs``)."""
 
 from __future__ import annotations
 

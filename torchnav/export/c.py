@@ -1,19 +1,9 @@
 """Dependency-free C99 export of a torchnav actor, for microcontrollers.
 
-``export_c(net, out_dir, name)`` writes
-
-- ``<name>.h``: sizes (``<NAME>_OBS_SIZE``, ``<NAME>_ACT_SIZE``, ...) and prototypes;
-- ``<name>.c``: the weights as ``static const`` arrays (row-major ``(out, in)``,
-  ``w[o * IN + i]``, as in ``nn.Linear``) of ``float``, of float16 bit patterns
-  (``uint16_t``, converted to float as they are used) or of ``int8_t`` with one float
-  scale per row (``Network.weights``, see ``common.quantize``), the observation
-  normalisation baked in, and
-  ``void <name>_forward(const float *obs, float *action)``: two static buffers of the
-  widest layer, no malloc, no libm except ``tanhf`` (tanh layers and heads only);
-- ``<name>_test.c``: reads observations (whitespace-separated floats) from stdin and
-  prints one line per observation (``%.9g``); ``verify_c`` compiles it with the system
-  compiler (``-Wall -Werror -std=c99 -O2``) and compares it against PyTorch.
-"""
+``export_c(net, out_dir, name)`` writes ``<name>.h``, ``<name>.c`` (weights as ``static const``
+float, float16 or int8 arrays, normalisation baked in, ``<name>_forward`` with two static
+buffers and no malloc) and ``<name>_test.c``, which ``verify_c`` compiles and compares with
+PyTorch. The files' contents: docs/export.md."""
 
 from __future__ import annotations
 

@@ -1,21 +1,10 @@
 """What every exporter shares: the network as plain float32 arrays, the PyTorch reference and test inputs.
 
-An exported policy is always the ``torchnav.policy.Actor`` computation
-
-    x = (obs - obs_loc) / obs_scale                 (obs_size,)
-    x = act(W_k x + b_k)   for each hidden layer    W_k: (out, in), row-major as in nn.Linear
-    y = W_L x + b_L                                 (out_size,)
-    tanh head:   action = tanh(y)                   (out_size,) in [-1, 1]
-    argmax head: index = argmax(y), action = action_table[index]   (2,)
-
-The weight matrices W_k can be stored as float32 (exact), float16 (IEEE half, rounded
-to nearest even) or int8 with one float32 scale per output row (symmetric per-channel
-quantisation, q = round(W / s), s = max|row| / 127, so W ~= s * q). Biases, the
-normalisation and all arithmetic stay float32: only the weights' storage shrinks.
-``quantize(net, weights)`` gives the network with those weights (``layers`` then hold
-the dequantised float32 values, which ``quantized_actor`` puts into a PyTorch actor:
-the reference the quantised C code is verified against and evaluated with).
-"""
+The network computes what ``torchnav.policy.Actor`` does (docs/export.md). Its weight matrices
+can be stored as float32, float16 (IEEE half, rounded to nearest even) or int8 with one float32
+scale per output row (``q = round(W / s)``, ``s = max|row| / 127``); biases, the normalisation
+and all arithmetic stay float32. ``quantize(net, weights)`` gives the network with the
+dequantised weights, which ``quantized_actor`` puts into the PyTorch reference."""
 
 from __future__ import annotations
 

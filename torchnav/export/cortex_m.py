@@ -1,28 +1,9 @@
 """Bare-metal build of the C export for a Cortex-M4F, run and measured in QEMU.
 
-``export_cortex_m4f(net, out_dir, name)`` writes, beside ``<name>.h``/``<name>.c`` (which it
-does not change):
-
-- ``<name>_m4.c``: a test firmware ``main``: reads observations (raw little-endian float32,
-  ``<NAME>_OBS_SIZE`` per record) from the host file ``obs.bin`` over Arm semihosting,
-  calls ``<name>_forward`` on each, writes the outputs as raw float32 to ``out.bin``
-  (discrete policies: index, action, Q-values), times every call with SysTick, measures
-  the stack high-water mark, and prints one summary line (``key=value``);
-- ``startup_m4.c``: vector table and reset handler (copy ``.data``, zero ``.bss``,
-  enable the FPU, call ``main``, exit through semihosting with its status);
-- ``mps2_an386.ld``: the linker script of QEMU's ``mps2-an386`` board (Cortex-M4 with
-  FPU; code at 0x00000000, RAM at 0x20000000);
-- ``Makefile``: ``make`` builds ``<name>_m4.elf`` with ``arm-none-eabi-gcc`` (hardware
-  float ``-mfloat-abi=hard -mfpu=fpv4-sp-d16``), ``make run`` runs it in ``qemu-system-arm``.
-
-``verify_cortex_m4f`` builds it in a temporary folder with the same flags, runs it under
-``qemu-system-arm -icount shift=0`` (one instruction = 1 ns of virtual time, so SysTick
-counts executed instructions; a calibration loop of known length converts ticks to
-instructions), compares the outputs with PyTorch and reports flash and RAM from the ELF.
-Board-specific: the linker script's memory map, the vector table's length (16 system
-vectors, no device interrupts) and semihosting (a real board needs a debugger attached,
-or a UART instead).
-"""
+``export_cortex_m4f(net, out_dir, name)`` writes a test firmware (``<name>_m4.c``), startup code,
+the linker script of QEMU's ``mps2-an386`` board and a Makefile beside the C export;
+``verify_cortex_m4f`` builds and runs it under ``qemu-system-arm -icount shift=0`` and compares
+its outputs with PyTorch. The files, the measurement and what is board-specific: docs/export.md."""
 
 from __future__ import annotations
 

@@ -14,7 +14,6 @@ from tensordict import tensorclass
 from torch import Tensor
 
 
-
 @tensorclass
 class World:
     """Per-env obstacles as padded tensors with validity masks.
@@ -80,6 +79,9 @@ class SimState:
     cmd_queue: Tensor
 
 
+_KIND_MASKS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
+
+
 def _as_rows(x, width: int, name: str, dtype, device) -> Tensor:
     t = torch.as_tensor(x if x is not None and len(x) else [], dtype=dtype, device=device)
     if t.numel() == 0:
@@ -102,34 +104,17 @@ def make_world(
     ``segments`` is ``(S, 4)``, ``circles`` ``(C, 3)``, ``boxes`` ``(K, 5)``, in the
     layouts of :class:`World`. Padded slots can be added later by concatenation.
     """
-    parts = {
-        "segments": _as_rows(segments, 4, "segments", dtype, device),
-        "circles": _as_rows(circles, 3, "circles", dtype, device),
-        "boxes": _as_rows(boxes, 5, "boxes", dtype, device),
-    }
+    given = {"segments": segments, "circles": circles, "boxes": boxes}
+    parts = {key: _as_rows(given[key], width, key, dtype, device) for key, _, width in _KIND_MASKS}
     if parts["circles"].numel() and (parts["circles"][:, 2] < 0).any():
         raise ValueError("circles: radius must be >= 0")
     if parts["boxes"].numel() and (parts["boxes"][:, 2:4] < 0).any():
         raise ValueError("boxes: half extents must be >= 0")
     out = {}
-    for key, t in parts.items():
-        out[key] = t.unsqueeze(0).expand(batch_size, *t.shape).clone()
-        out[key.rstrip("s") + "_mask" if key != "boxes" else "box_mask"] = torch.ones(
-            batch_size, t.shape[0], dtype=torch.bool, device=device
-        )
-    return World(
-        segments=out["segments"],
-        segment_mask=out["segment_mask"],
-        circles=out["circles"],
-        circle_mask=out["circle_mask"],
-        boxes=out["boxes"],
-        box_mask=out["box_mask"],
-        batch_size=[batch_size],
-        device=device,
-    )
-
-
-_KIND_MASKS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
+    for key, mkey, _ in _KIND_MASKS:
+        out[key] = parts[key].unsqueeze(0).expand(batch_size, *parts[key].shape).clone()
+        out[mkey] = torch.ones(batch_size, parts[key].shape[0], dtype=torch.bool, device=device)
+    return World(**out, batch_size=[batch_size], device=device)
 
 
 def pad_world(world: World, segments: int | None = None, circles: int | None = None, boxes: int | None = None) -> World:
@@ -210,19 +195,12 @@ def planar_world(world: World) -> World:
 
 def check_world(world: World, batch_size: int, dtype: torch.dtype, device: torch.device) -> None:
     """Raise a ValueError naming the field whose shape, dtype or device is off."""
-    specs = {
-        "segments": 4,
-        "circles": 3,
-        "boxes": 5,
-    }
-    masks = {"segments": "segment_mask", "circles": "circle_mask", "boxes": "box_mask"}
-    for name, width in specs.items():
-        t = getattr(world, name)
-        m = getattr(world, masks[name])
+    for name, mask, width in _KIND_MASKS:
+        t, m = getattr(world, name), getattr(world, mask)
         if t.dim() != 3 or t.shape[0] != batch_size or t.shape[2] != width:
             raise ValueError(f"world.{name} must have shape ({batch_size}, N, {width}), got {tuple(t.shape)}")
         if m.shape != t.shape[:2] or m.dtype != torch.bool:
-            raise ValueError(f"world.{masks[name]} must be a bool tensor of shape {tuple(t.shape[:2])}, got {m.dtype} {tuple(m.shape)}")
+            raise ValueError(f"world.{mask} must be a bool tensor of shape {tuple(t.shape[:2])}, got {m.dtype} {tuple(m.shape)}")
         if t.dtype != dtype:
             raise ValueError(f"world.{name} has dtype {t.dtype}, expected {dtype} (the state's dtype)")
         if t.device != device:

@@ -1,14 +1,7 @@
-"""``corridors``: a random maze of corridors of one width.
+"""``corridors``: a random maze of corridors of one width (docs/worlds.md, "corridors").
 
-The maze is an ``n x n`` grid of square cells of side ``corridor_width``: the
-open walls form a random spanning tree of the cells (every cell is reachable,
-dead ends and turns everywhere), plus a few extra openings that make loops.
-Closed wall pieces on one grid line are merged into long segments.
-
-Slots (fixed for every difficulty): 4 boundary walls, then ``MAX_SEGMENTS``
-merged walls (a grid line of ``MAX_CELLS`` units holds at most
-``ceil(MAX_CELLS / 2)`` separate runs).
-"""
+Slots (fixed for every difficulty): 4 boundary walls, then ``MAX_SEGMENTS`` merged walls (a grid
+line of ``MAX_CELLS`` units holds at most ``ceil(MAX_CELLS / 2)`` separate runs)."""
 
 from __future__ import annotations
 

@@ -1,21 +1,10 @@
 """Start and goal placement with a guaranteed collision-free path for the robot's disc.
 
-For each env: sample the world's clearance on a grid of ``resolution`` m
-(:func:`~torchnav.worlds.raster.clearance_grid`), call a cell free when its
-centre is more than ``robot_radius + resolution / sqrt(2)`` m from every
-obstacle and from the world's edge, draw a start cell in a large free
-component, run a geodesic wavefront from it and pick a goal whose path length
-lies in a difficulty-dependent band.
-
-Why the path is safe: clearance is 1-Lipschitz, and every point of a straight
-step between neighbouring cell centres (axis or diagonal) lies within
-``resolution / sqrt(2)`` of one of its two ends, so the polyline through free
-cell centres keeps more than ``robot_radius`` from every obstacle. The start
-and goal are jittered inside their cells (again within ``resolution / sqrt(2)``
-of the centre), so they are collision-free too, and the path's length is the
-wavefront's octile length plus the two jitter offsets: an upper bound on the
-shortest collision-free path, tight to a few percent.
-"""
+Per env: the world's clearance on a grid of ``resolution`` m, free cells more than
+``robot_radius + resolution / sqrt(2)`` m from every obstacle and the edge, a start in a large
+free component, a geodesic wavefront from it, and a goal whose path length lies in a
+difficulty-dependent band. Why the path is safe, and how tight its length is: docs/worlds.md,
+"Starts, goals and the path guarantee"."""
 
 from __future__ import annotations
 

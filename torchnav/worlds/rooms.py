@@ -1,16 +1,9 @@
-"""``rooms``: an office of rooms on a grid, separated by walls with doors, some furnished.
+"""``rooms``: an office of rooms on a grid, separated by walls with doors, some furnished (docs/worlds.md, "rooms").
 
-Rooms sit on an ``n x n`` grid; columns and rows have random widths. The doors
-between neighbouring rooms follow a random spanning tree of the room grid (so
-every room can be reached), plus extra doors that make loops. Each room may
-hold one piece of furniture (an oriented box) that keeps ``FURNITURE_GAP`` m
-from every wall, so it never blocks a door.
-
-Slots (fixed for every difficulty): 4 boundary walls, then 2 segments per
-interior wall (``MAX_ROOMS * (MAX_ROOMS - 1) * 2`` walls, vertical ones first):
-segment ``4 + 2k`` runs from the wall's start to its door (or along the whole
-wall when it has none, and then ``4 + 2k + 1`` is masked off). One box per room.
-"""
+Slots (fixed for every difficulty): 4 boundary walls, then 2 segments per interior wall
+(``MAX_ROOMS * (MAX_ROOMS - 1) * 2`` walls, vertical ones first): segment ``4 + 2k`` runs from the
+wall's start to its door (or along the whole wall when it has none, and then ``4 + 2k + 1`` is
+masked off). One box per room."""
 
 from __future__ import annotations
 
