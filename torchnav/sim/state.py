@@ -16,67 +16,37 @@ from torch import Tensor
 
 @tensorclass
 class World:
-    """Per-env obstacles as padded tensors with validity masks.
+    """Per-env obstacles as padded tensors with validity masks: ``segments`` ``(B, S, 4)``, ``circles``
+    ``(B, C, 3)``, ``boxes`` ``(B, K, 5)`` and their bool masks; slots masked off are ignored. The row
+    layouts and units: docs/sim.md, "Worlds and obstacles"."""
 
-    Envs of one batch may hold different numbers of obstacles: slots whose mask
-    is False are ignored by collision and lidar. A kind may have zero slots.
-
-    Attributes:
-        segments: ``(B, S, 4)`` walls ``[x1, y1, x2, y2]`` in m.
-        segment_mask: ``(B, S)`` bool.
-        circles: ``(B, C, 3)`` ``[cx, cy, radius]`` in m.
-        circle_mask: ``(B, C)`` bool.
-        boxes: ``(B, K, 5)`` oriented boxes ``[cx, cy, half_x, half_y, yaw]`` (m, m, m, m, rad).
-        box_mask: ``(B, K)`` bool.
-    """
-
-    segments: Tensor
+    segments: Tensor  # (B, S, 4) walls [x1, y1, x2, y2], m
     segment_mask: Tensor
-    circles: Tensor
+    circles: Tensor  # (B, C, 3) [cx, cy, radius], m
     circle_mask: Tensor
-    boxes: Tensor
+    boxes: Tensor  # (B, K, 5) oriented boxes [cx, cy, half_x, half_y, yaw], m and rad
     box_mask: Tensor
 
 
 @tensorclass
 class SimState:
-    """Everything the simulator knows about ``B`` robots after a step.
+    """Everything the simulator knows about ``B`` robots after a step, all ``(B, ...)``; each field's
+    shape, meaning and unit is tabled in docs/sim.md, "State and units"."""
 
-    Attributes:
-        pose: ``(B, 3)`` true pose ``[x m, y m, theta rad]``.
-        vel: ``(B, 2)`` applied twist ``[v m/s, omega rad/s]`` (after limits).
-        odom: ``(B, 3)`` odometry pose estimate, integrated from noisy velocities.
-        ranges: ``(B, n_rays)`` lidar ranges in m of the current pose.
-        clearance: ``(B,)`` signed distance in m from the robot disc to the nearest obstacle
-            (negative when penetrating).
-        collided: ``(B,)`` bool, ``clearance <= 0``.
-        time: ``(B,)`` simulated time in s since the last reset.
-        imu: ``(B, 3)`` IMU reading ``[a_x m/s^2, a_y m/s^2, yaw rate rad/s]`` in the body
-            frame (``imu.py``); ``(B, 0)`` without an IMU (``SimParams.imu`` None).
-        imu_bias: ``(B, 3)`` the IMU's current bias (same units); ``(B, 0)`` without an IMU.
-        cam_depth: ``(B, n_cols)`` camera depth row in m (``camera.py``); ``(B, 0)`` without a camera.
-        movers: ``(B, M, 9)`` moving obstacles (``movers.py``); ``M`` may be 0.
-        mover_mask: ``(B, M)`` bool, which mover slots exist.
-        mover_plan: ``(B, M, 4 + 2P)`` waypoints of patrols and pedestrians (``movers.py``);
-            ``(B, M, 0)`` when every mover is ballistic.
-        cmd_queue: ``(B, K, 2)`` the last ``K`` commands, newest first, for an actuator
-            delay of up to ``K`` steps (``randomize.py``); ``(B, 0, 2)`` without delay.
-    """
-
-    pose: Tensor
-    vel: Tensor
-    odom: Tensor
-    ranges: Tensor
-    clearance: Tensor
-    collided: Tensor
-    time: Tensor
-    imu: Tensor
-    imu_bias: Tensor
-    cam_depth: Tensor
-    movers: Tensor
+    pose: Tensor  # (B, 3) true pose [x m, y m, theta rad]
+    vel: Tensor  # (B, 2) applied twist [v m/s, omega rad/s], after the limits
+    odom: Tensor  # (B, 3) odometry estimate, integrated from noisy velocities
+    ranges: Tensor  # (B, n_rays) lidar ranges at pose, m
+    clearance: Tensor  # (B,) signed gap robot disc - nearest obstacle, m (negative when penetrating)
+    collided: Tensor  # (B,) bool, clearance <= 0
+    time: Tensor  # (B,) s since the last reset
+    imu: Tensor  # (B, 3) [a_x m/s^2, a_y m/s^2, yaw rate rad/s] in the body frame; (B, 0) without an IMU
+    imu_bias: Tensor  # (B, 3) the IMU's bias (same units); (B, 0) without an IMU
+    cam_depth: Tensor  # (B, n_cols) camera depth row, m; (B, 0) without a camera
+    movers: Tensor  # (B, M, 9) moving obstacles (movers.py); M may be 0
     mover_mask: Tensor
-    mover_plan: Tensor
-    cmd_queue: Tensor
+    mover_plan: Tensor  # (B, M, 4 + 2P) patrol and pedestrian waypoints; (B, M, 0) if all are ballistic
+    cmd_queue: Tensor  # (B, K, 2) the last K commands, newest first, for actuator delay (randomize.py)
 
 
 _KIND_MASKS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))

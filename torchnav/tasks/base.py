@@ -15,16 +15,13 @@ from .rewards import sum_terms
 
 @tensorclass
 class TaskState:
-    """The per-env state every task keeps, all ``(B, ...)``: ``sim`` (the simulator state),
-    ``steps`` ``(B,)`` int64 steps this episode, ``history`` ``(B, H, D)`` the last ``H``
-    observation frames (newest last), ``ep_return`` ``(B,)`` and ``ep_terms`` ``(B, T)`` the
-    running sums of the reward and of each weighted reward term."""
+    """The per-env state every task keeps, all ``(B, ...)``."""
 
-    sim: SimState
-    steps: Tensor
-    history: Tensor
-    ep_return: Tensor
-    ep_terms: Tensor
+    sim: SimState  # the simulator state
+    steps: Tensor  # (B,) int64 steps this episode
+    history: Tensor  # (B, H, D) the last H observation frames, newest last
+    ep_return: Tensor  # (B,) running sum of the reward
+    ep_terms: Tensor  # (B, T) running sum of each weighted reward term
 
 
 class BatchedTask:

@@ -175,26 +175,15 @@ class LineTask(BatchedTask):
 
 @tensorclass
 class LineState(TaskState):
-    """Per-env task state, all ``(B, ...)``: the fields of :class:`~torchnav.tasks.base.TaskState`
-    (``history`` ``(B, H, K)`` of sensor readings) and
+    """Per-env line-following state, all ``(B, ...)``: :class:`~torchnav.tasks.base.TaskState`
+    (``history`` ``(B, H, K)`` of sensor readings) and the robot's place on the lap."""
 
-    Attributes:
-        s: ``(B,)`` m, arc length of the robot's projection on the lap path. path_dist: ``(B,)`` m
-            from the lap path. progress: ``(B,)`` m of arc length gained this episode (negative when
-            driven backwards). laps: ``(B,)`` int64, most full laps reached this episode.
-        lap_time: ``(B,)`` s at which the first lap was completed (0 until then).
-        readings: ``(B, K)`` current sensor values in [0, 1].
-        off_steps, stop_steps: ``(B,)`` int64: consecutive steps with no sensor on the line,
-            consecutive steps below the stop speed.
-        time_off_line: ``(B,)`` s with no sensor on the line this episode.
-    """
-
-    s: Tensor
-    path_dist: Tensor
-    progress: Tensor
-    laps: Tensor
-    lap_time: Tensor
-    readings: Tensor
-    off_steps: Tensor
-    stop_steps: Tensor
-    time_off_line: Tensor
+    s: Tensor  # (B,) m, arc length of the robot's projection on the lap path
+    path_dist: Tensor  # (B,) m from the lap path
+    progress: Tensor  # (B,) m of arc length gained this episode (negative when driven backwards)
+    laps: Tensor  # (B,) int64, most full laps reached this episode
+    lap_time: Tensor  # (B,) s at which the first lap was completed (0 until then)
+    readings: Tensor  # (B, K) current sensor values in [0, 1]
+    off_steps: Tensor  # (B,) int64 consecutive steps with no sensor on the line
+    stop_steps: Tensor  # (B,) int64 consecutive steps below the stop speed
+    time_off_line: Tensor  # (B,) s with no sensor on the line this episode

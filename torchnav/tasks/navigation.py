@@ -248,25 +248,15 @@ class NavTask(BatchedTask):
 
 @tensorclass
 class NavState(TaskState):
-    """Per-env task state, all ``(B, ...)``: the fields of :class:`~torchnav.tasks.base.TaskState`
-    (``history`` ``(B, H, D)`` of observation frames) and
+    """Per-env navigation state, all ``(B, ...)``: :class:`~torchnav.tasks.base.TaskState`
+    (``history`` ``(B, H, D)`` of observation frames) and the episode's world and goal."""
 
-    Attributes:
-        world: obstacles of this episode. goal: ``(B, 2)`` m. start: ``(B, 3)`` start pose.
-        goal_dist: ``(B,)`` m, distance to the goal after the last step.
-        ep_path, straight: ``(B,)`` running path length (m) and start-goal distance (m).
-        family: ``(B,)`` int64 index of the episode's world family in ``cfg.worlds.families``
-            (0 without procedural worlds). difficulty: ``(B,)`` its difficulty in [0, 1].
-        env_params: the episode's per-env robot and sensor parameters (``cfg.randomize``;
-            the fixed values of ``cfg`` when nothing is randomised).
-    """
-
-    world: World
-    goal: Tensor
-    start: Tensor
-    goal_dist: Tensor
-    ep_path: Tensor
-    straight: Tensor
-    family: Tensor
-    difficulty: Tensor
-    env_params: EnvParams
+    world: World  # obstacles of this episode
+    goal: Tensor  # (B, 2) m
+    start: Tensor  # (B, 3) start pose
+    goal_dist: Tensor  # (B,) m to the goal after the last step
+    ep_path: Tensor  # (B,) m driven this episode
+    straight: Tensor  # (B,) m start-goal distance
+    family: Tensor  # (B,) int64 index of the episode's world family in cfg.worlds.families (0 without)
+    difficulty: Tensor  # (B,) that family's difficulty in [0, 1]
+    env_params: EnvParams  # per-env robot and sensor parameters (cfg.randomize; cfg's values when none)
