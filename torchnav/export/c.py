@@ -11,14 +11,13 @@ import keyword
 import os
 import re
 import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .common import Network, compare
+from .common import Network, compare, outputs, run_tool
 
 C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
 _C_KEYWORDS = set("auto break case char const continue default do double else enum extern float for goto if inline int "
@@ -244,25 +243,18 @@ def compile_test(out_dir: str | Path, name: str = "policy", compiler: str | None
     out_dir = Path(out_dir)
     exe = Path(workdir or out_dir) / f"{name}_test"
     cmd = [compiler, *C_FLAGS, str(out_dir / f"{name}.c"), str(out_dir / f"{name}_test.c"), "-o", str(exe), "-lm"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"C compilation failed ({' '.join(cmd)}):\n{r.stdout}{r.stderr}")
+    run_tool(cmd, "C compilation")
     return exe
 
 
 def run_c(exe: str | Path, obs: np.ndarray, net: Network) -> dict[str, np.ndarray]:
     """Run the compiled test program on ``obs`` ``(n, obs_size)``; keys as in ``common.reference``."""
     text = "\n".join(" ".join("%.9g" % v for v in row) for row in np.asarray(obs, dtype=np.float32))
-    r = subprocess.run([str(exe)], input=text + "\n", capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"{exe} failed with exit code {r.returncode}: {r.stderr}")
+    r = run_tool([str(exe)], "the C test program", input=text + "\n")
     vals = np.array([[float(v) for v in line.split()] for line in r.stdout.splitlines() if line.strip()], dtype=np.float64)
     if vals.shape[0] != obs.shape[0]:
         raise RuntimeError(f"{exe} printed {vals.shape[0]} lines for {obs.shape[0]} observations")
-    if net.output == "tanh":
-        return {"action": vals}
-    a = net.act_size
-    return {"index": vals[:, 0].astype(np.int64), "action": vals[:, 1:1 + a], "q": vals[:, 1 + a:]}
+    return outputs(vals, net)
 
 
 def verify_c(out_dir: str | Path, net: Network, ref: dict[str, np.ndarray], obs: np.ndarray, tolerance: float,

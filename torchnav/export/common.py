@@ -9,6 +9,7 @@ dequantised weights, which ``quantized_actor`` puts into the PyTorch reference."
 from __future__ import annotations
 
 import copy
+import subprocess
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -193,6 +194,23 @@ def reference(actor: Actor, obs: np.ndarray, action_table: np.ndarray | None = N
         return {"action": y}
     idx = y.argmax(-1)
     return {"action": action_table[idx], "index": idx, "q": y}
+
+
+def outputs(vals: np.ndarray, net: Network) -> dict[str, np.ndarray]:
+    """An exported program's output rows ``(n, width)`` as :func:`reference` gives them: the action,
+    or (argmax) the index, the action and the Q-values."""
+    if net.output == "tanh":
+        return {"action": vals}
+    a = net.act_size
+    return {"index": vals[:, 0].astype(np.int64), "action": vals[:, 1:1 + a], "q": vals[:, 1 + a:]}
+
+
+def run_tool(cmd: list[str], what: str, **kw: Any) -> subprocess.CompletedProcess:
+    """Run a compiler, the test program or QEMU; ``RuntimeError`` with its output when it fails."""
+    r = subprocess.run(cmd, capture_output=True, text=True, **kw)
+    if r.returncode != 0:
+        raise RuntimeError(f"{what} failed (exit {r.returncode}: {' '.join(cmd)}):\n{r.stdout}{r.stderr}")
+    return r
 
 
 def compare(ref: dict[str, np.ndarray], got: dict[str, np.ndarray], tolerance: float) -> dict[str, Any]:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import re
 import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from .c import write_files
-from .common import Network, compare
+from .common import Network, compare, outputs, run_tool
 
 TARGETS = ("host", "cortex-m4f")
 #: Debian/Ubuntu packages that provide the cross compiler, its C library and the emulator.
@@ -295,17 +294,10 @@ def export_cortex_m4f(net: Network, out_dir: str | Path, name: str = "policy") -
                                  "Makefile": _makefile(name)})
 
 
-def _run(cmd: list[str], what: str, **kw: Any) -> subprocess.CompletedProcess:
-    r = subprocess.run(cmd, capture_output=True, text=True, **kw)
-    if r.returncode != 0:
-        raise RuntimeError(f"{what} failed (exit {r.returncode}: {' '.join(cmd)}):\n{r.stdout}{r.stderr}")
-    return r
-
-
 def _sizes(elf: Path, objects: list[Path]) -> dict[str, int]:
     """Section sizes (``arm-none-eabi-size -A``) of the ELF and of the policy's object file."""
     def sections(path: Path) -> dict[str, int]:
-        r = _run([CROSS_SIZE, "-A", str(path)], "arm-none-eabi-size")
+        r = run_tool([CROSS_SIZE, "-A", str(path)], "arm-none-eabi-size")
         out = {}
         for line in r.stdout.splitlines():
             m = re.match(r"^(\.\S+)\s+(\d+)\s+\d+", line)
@@ -336,9 +328,9 @@ def build_cortex_m4f(out_dir: str | Path, name: str = "policy", workdir: str | P
     work = Path(workdir or out_dir)
     flags = [*CPU_FLAGS, *C_FLAGS]
     obj = work / f"{name}.o"
-    _run([CROSS_CC, *flags, "-c", str(out_dir / f"{name}.c"), "-o", str(obj)], "cross-compiling the policy")
+    run_tool([CROSS_CC, *flags, "-c", str(out_dir / f"{name}.c"), "-o", str(obj)], "cross-compiling the policy")
     elf = work / f"{name}_m4.elf"
-    _run([CROSS_CC, *flags, "-T", str(out_dir / LINKER_SCRIPT), *LD_FLAGS, str(obj),
+    run_tool([CROSS_CC, *flags, "-T", str(out_dir / LINKER_SCRIPT), *LD_FLAGS, str(obj),
           str(out_dir / f"{name}_m4.c"), str(out_dir / "startup_m4.c"), *LIBS, "-o", str(elf)], "cross-compiling the firmware")
     return elf, _sizes(elf, [obj])
 
@@ -349,7 +341,7 @@ def run_qemu(elf: str | Path, obs: np.ndarray, net: Network, workdir: str | Path
     workdir = Path(workdir)
     np.ascontiguousarray(obs, dtype="<f4").tofile(workdir / "obs.bin")
     (workdir / "out.bin").unlink(missing_ok=True)
-    r = _run([QEMU, *QEMU_ARGS, "-kernel", str(Path(elf).resolve())], "running the firmware in QEMU", cwd=workdir, timeout=timeout)
+    r = run_tool([QEMU, *QEMU_ARGS, "-kernel", str(Path(elf).resolve())], "running the firmware in QEMU", cwd=workdir, timeout=timeout)
     text = r.stdout + r.stderr
     m = re.search(r"n=(\d+) ticks=(\d+) cal_ticks=(\d+) cal_insns=(\d+) stack=(\d+)", text)
     if m is None:
@@ -358,12 +350,8 @@ def run_qemu(elf: str | Path, obs: np.ndarray, net: Network, workdir: str | Path
     if summary["n"] != len(obs):
         raise RuntimeError(f"the firmware ran {summary['n']} observations of {len(obs)}")
     vals = np.fromfile(workdir / "out.bin", dtype="<f4").astype(np.float64)
-    a = net.act_size
-    width = 1 + a + net.out_size if net.output == "argmax" else a
-    vals = vals.reshape(len(obs), width)
-    if net.output == "tanh":
-        return {"action": vals}, summary
-    return {"index": vals[:, 0].astype(np.int64), "action": vals[:, 1:1 + a], "q": vals[:, 1 + a:]}, summary
+    width = 1 + net.act_size + net.out_size if net.output == "argmax" else net.act_size
+    return outputs(vals.reshape(len(obs), width), net), summary
 
 
 def verify_cortex_m4f(out_dir: str | Path, net: Network, ref: dict[str, np.ndarray], obs: np.ndarray, tolerance: float,
