@@ -26,12 +26,17 @@ class BatchedEnv(EnvBase):
     """``batch_size=(num_envs,)`` env stepping a pure task with one ``torch.Generator`` seeded by ``seed``."""
 
     _has_dynamic_specs = False
+    config_class: type = object  # the task's config (its default when ``cfg`` is None) and the task
+    task_class: type = object
 
-    def __init__(self, num_envs: int, device: torch.device | str, seed: int | None) -> None:
+    def __init__(self, cfg: Any = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0) -> None:
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(0 if seed is None else int(seed))
         self._state: Any = None
+        self.cfg = cfg or self.config_class()
+        self.task = self.task_class(self.cfg, num_envs, device=self.device)
+        self._make_specs()
 
     def _flag_spec(self) -> Categorical:
         return Categorical(2, shape=(*self.batch_size, 1), dtype=torch.bool, device=self.device)

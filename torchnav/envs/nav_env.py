@@ -22,17 +22,14 @@ from .base import BatchedEnv
 class NavEnv(BatchedEnv):
     """Batched lidar navigation (see docs/tasks.md for observation, action and reward)."""
 
+    config_class, task_class = NavConfig, NavTask
+
     def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0,
                  compile_step: bool = False):
-        cfg = cfg or NavConfig()
-        super().__init__(num_envs, device, seed)
-        self.cfg = cfg
-        self.task = NavTask(cfg, num_envs, device=self.device)
+        super().__init__(cfg, num_envs, device, seed)
         if compile_step:  # the simulator step through torch.compile (not TorchRL's `compile`, which compiles the whole env step)
             self.task.compile_step()
         self.restart_curriculum()
-        self._state: NavState | None = None
-        self._make_specs()
 
     def restart_curriculum(self) -> None:
         """Put the curriculum back to its initial state (goal radius, world difficulties)."""
