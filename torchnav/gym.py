@@ -81,12 +81,15 @@ class TorchnavVectorEnv(VectorEnv):
         self._td = self.env.reset()
         return self._obs(self._td), self._info(self._td)
 
-    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    def _advance(self, action: torch.Tensor) -> TensorDict:
+        """One step of the TorchRL env from the last outputs; its ``"next"`` outputs (no autoreset)."""
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        td = self._td.clone(False)
-        td.set("action", self._action_tensor(actions))
-        nxt = self.env.step(td)["next"]
+        self._td = self.env.step(self._td.clone(False).set("action", action))["next"]
+        return self._td
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        nxt = self._advance(self._action_tensor(actions))
         obs, info = self._obs(nxt), self._info(nxt)
         reward = nxt["reward"].reshape(-1).cpu().numpy()
         terminated = nxt["terminated"].reshape(-1).cpu().numpy()
@@ -101,8 +104,7 @@ class TorchnavVectorEnv(VectorEnv):
             for k, v in self._info(fresh).items():  # the finished envs' flags are their new episode's
                 info[k][done] = v[done]
             info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
-            nxt = fresh
-        self._td = nxt
+            self._td = fresh
         return obs, reward, terminated, truncated, info
 
     def close(self, **kwargs: Any) -> None:
@@ -155,14 +157,8 @@ class TorchnavEnv(gymnasium.Env):
         return obs[0], {k: bool(v[0]) for k, v in info.items()}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        td = self._vec._td
-        if td is None:
-            raise RuntimeError("call reset() before step()")
         a = np.asarray(action)
-        td = td.clone(False)
-        td.set("action", self._vec._action_tensor(a[None] if self._vec._discrete else a.reshape(1, -1)))
-        nxt = self.env.step(td)["next"]
-        self._vec._td = nxt
+        nxt = self._vec._advance(self._vec._action_tensor(a[None] if self._vec._discrete else a.reshape(1, -1)))
         terminated, truncated = bool(nxt["terminated"].item()), bool(nxt["truncated"].item())
         info: dict[str, Any] = {k: bool(v[0]) for k, v in self._vec._info(nxt).items()}
         if terminated or truncated:
