@@ -15,13 +15,9 @@ from torch import Tensor
 
 from .geometry import segment_distance
 from .math import rotate
+from .params import _require
 
 FLOOR_MODES = ("analog", "binary", "smooth")
-
-
-def _require(cond: bool, msg: str) -> None:
-    if not cond:
-        raise ValueError(msg)
 
 
 @dataclass(frozen=True)
