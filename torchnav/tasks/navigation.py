@@ -187,18 +187,8 @@ class NavTask(BatchedTask):
         return state, (after_placements(cur, self.cfg.curriculum, torch.tensor(n, device=self.device)) if n else cur)
 
     def _from_pool(self, n: int, cur: CurriculumState, generator: torch.Generator) -> NavState:
-        """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short.
-
-        Every env of a task shares the map's fixed world (or, with procedural worlds,
-        every episode carries its own world padded to the same slots), so episodes
-        sampled for any env fit every env. Sampling many at once costs about as much
-        as sampling a few (the samplers are bound by per-operation overhead), so with
-        a pool a reset costs an index copy most of the time. Goals and difficulties
-        come from the curriculum at the time the pool was filled. With procedural
-        worlds a pool is always used (``reset.pool`` 0 means ``num_envs`` episodes).
-        With ``reset.reuse = k`` the pool is handed out ``k`` times, each pass in a
-        fresh order, before it is refilled (generating a world costs milliseconds).
-        """
+        """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short; each pooled
+        episode fits any env. Why, and ``reset.reuse``: docs/tasks.md, "Episode pool"."""
         size = 0 if self._pool is None else self._pool.batch_size[0]
         if self._pool is not None and self._pool_pos + n > size and self._pool_passes < self.cfg.reset.reuse:
             self._pool = self._pool[torch.randperm(size, generator=generator, device=generator.device).to(self.device)]
