@@ -39,7 +39,7 @@ import common  # noqa: E402  (sets TORCHINDUCTOR_COMPILE_THREADS before torch is
 import torch  # noqa: E402
 from torchrl.collectors import Collector  # noqa: E402
 
-from torchnav.envs import make_env  # noqa: E402
+from torchnav.envs import make_nav_env  # noqa: E402
 from torchnav.sim import step  # noqa: E402
 
 TARGET_RATIO = 0.5
@@ -198,7 +198,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     args = parse_args(argv)
     log = common.start(args, f"env_throughput: map {args.map}, {args.num_envs} envs on {args.device}", args.device, "env_machine")
-    env = make_env(args.map, num_envs=args.num_envs, device=args.device, seed=args.seed, reset={"pool": args.pool})
+    env = make_nav_env(args.map, num_envs=args.num_envs, device=args.device, seed=args.seed, reset={"pool": args.pool})
     env.reset()
     records = []
     for fn in (bench_raw, bench_env_step, bench_collector, bench_gym_vector):

@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from torchnav.controllers import OccupancyGrid, RRTParams, make_controller, plan_astar, plan_rrt  # noqa: E402
-from torchnav.envs import make_env  # noqa: E402
+from torchnav.envs import make_nav_env  # noqa: E402
 
 
 def _stats(name: str, ms: list[float], ok: list[bool], args: argparse.Namespace, **extra: Any) -> dict[str, Any]:
@@ -69,7 +69,7 @@ def main(argv: list[str]) -> list[dict[str, Any]]:
     out = sys.stderr if a.json else sys.stdout
 
     gains = {k: v for k, v in (("resolution", a.resolution), ("rrt_max_iters", a.rrt_iters)) if v is not None}
-    env = make_env(a.map, num_envs=a.queries, seed=a.seed, curriculum={"mode": "off"})
+    env = make_nav_env(a.map, num_envs=a.queries, seed=a.seed, curriculum={"mode": "off"})
     env.reset()
     astar = make_controller("astar", **gains).bind(env)
     rrt = make_controller("rrt", **gains).bind(env)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from torchnav.envs.nav_env import make_env
+from torchnav.envs.nav_env import make_nav_env
 from torchnav.record import EpisodeRecorder, record_rollout
 
 
@@ -49,7 +49,7 @@ def main() -> None:
     ap.add_argument("--map", default="arena")
     args = ap.parse_args()
 
-    env = make_env(args.map, num_envs=args.num_envs, device=args.device, seed=0, max_steps=100)
+    env = make_nav_env(args.map, num_envs=args.num_envs, device=args.device, seed=0, max_steps=100)
     gen = torch.Generator(device=args.device).manual_seed(0)
     table = torch.rand(64, args.num_envs, 2, generator=gen, device=args.device) * 2 - 1
     step = {"i": 0}

@@ -79,9 +79,9 @@ def test_every_error_is_listed_at_once(tmp_path):
 def test_envs_refuse_wrong_action_shape_dtype_and_nan(kind):
     from tensordict import TensorDict
 
-    from torchnav.envs import make_env, make_line_env
+    from torchnav.envs import make_nav_env, make_line_env
 
-    env = make_env("arena", num_envs=4) if kind == "nav" else make_line_env("oval", num_envs=4)
+    env = make_nav_env("arena", num_envs=4) if kind == "nav" else make_line_env("oval", num_envs=4)
     td = env.reset()
     td["action"] = torch.zeros(4, 3)
     with pytest.raises(ValueError, match=r"action has shape \(4, 3\), expected \(4, 2\)"):
@@ -256,12 +256,12 @@ def test_bad_map_file_is_named_quickly(tmp_path, text, message):
 @pytest.mark.parametrize("text", ["size: [5, 5]\nboxes:\n  - {center: [0, 0], size: [5, 5]}",  # a box as large as the world
                                   "size: [0.3, 0.3]"])  # smaller than the robot
 def test_map_without_room_for_the_robot_is_refused(tmp_path, text):
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
 
     path = tmp_path / "full.yaml"
     path.write_text(text)
     with pytest.raises(MapError, match="no room for a start"):
-        make_env(str(path), num_envs=2)
+        make_nav_env(str(path), num_envs=2)
 
 
 def test_huge_image_is_refused_before_decoding(tmp_path, monkeypatch):

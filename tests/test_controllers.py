@@ -13,7 +13,7 @@ from torchnav.config import ConfigError
 from torchnav.controllers import (
     CONTROLLERS, Obstacles, OccupancyGrid, RRTParams, TrackerGains, WaypointTracker, drive, make_controller, plan_astar, plan_rrt,
 )
-from torchnav.envs import make_env
+from torchnav.envs import make_nav_env
 from torchnav.evaluation import eval_config, run_episodes
 from torchnav.tasks import NavConfig
 
@@ -125,7 +125,7 @@ def test_tracker_follows_known_waypoints_and_batches():
 
 @pytest.mark.parametrize("name", ["go_to_goal", "reactive", "potential_field"])
 def test_batched_equals_per_env(name):
-    env = make_env("arena", num_envs=16, seed=3, curriculum={"mode": "off"})
+    env = make_nav_env("arena", num_envs=16, seed=3, curriculum={"mode": "off"})
     td = env.reset()
     ctrl = make_controller(name).bind(env)
     batched = ctrl(td.clone())["action"]
@@ -145,7 +145,7 @@ def test_planners_in_evaluation_are_bound_and_succeed():
 
 
 def test_planner_needs_binding_and_errors_are_clear():
-    td = make_env("empty", num_envs=2).reset()
+    td = make_nav_env("empty", num_envs=2).reset()
     with pytest.raises(RuntimeError, match="bind"):
         make_controller("astar")(td)
     with pytest.raises(ConfigError, match="unknown controller 'astr'.*did you mean 'astar'"):
@@ -177,7 +177,7 @@ def test_no_path_stops(tmp_path):
 
 def test_windowed_grid_matches_full_grid_below_the_window():
     """Stamping random objects near themselves only equals the full rasterisation where it matters."""
-    env = make_env("street", num_envs=6, seed=2, curriculum={"mode": "off"})
+    env = make_nav_env("street", num_envs=6, seed=2, curriculum={"mode": "off"})
     env.reset()
     ctrl = make_controller("astar").bind(env)
     world = env.state.world.to("cpu")

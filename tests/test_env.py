@@ -14,7 +14,7 @@ from torchrl.envs import CatFrames, Compose, ObservationNorm, RewardSum, StepCou
 from torchrl.envs.utils import RandomPolicy, check_env_specs
 
 from torchnav.config import ConfigError
-from torchnav.envs import NavEnv, make_env
+from torchnav.envs import NavEnv, make_nav_env
 from torchnav.maps import MapError, available_maps
 from torchnav.sim import sectorize
 from torchnav.tasks import PRESETS, NavConfig
@@ -58,7 +58,7 @@ def masked(mask: torch.Tensor) -> TensorDict:
 
 @pytest.mark.parametrize("num_envs", [1, 3, 16])
 def test_check_env_specs_at_several_batch_sizes(num_envs):
-    env = make_env("arena", num_envs=num_envs)
+    env = make_nav_env("arena", num_envs=num_envs)
     assert env.batch_size == (num_envs,) and env.num_envs == num_envs
     check_env_specs(env)
     b = num_envs
@@ -85,7 +85,7 @@ def test_check_env_specs_at_several_batch_sizes(num_envs):
     ids=["discrete", "history", "shaped", "progress+step", "noise", "reverse+acc"],
 )
 def test_check_env_specs_for_options(overrides):
-    env = make_env("warehouse", num_envs=2, **overrides)
+    env = make_nav_env("warehouse", num_envs=2, **overrides)
     check_env_specs(env)
     td = env.rollout(12, break_when_any_done=False)
     for t in range(12):
@@ -94,7 +94,7 @@ def test_check_env_specs_for_options(overrides):
 
 @pytest.mark.parametrize("name", available_maps())
 def test_every_shipped_map_makes_a_working_env(name):
-    env = make_env(name, num_envs=2)
+    env = make_nav_env(name, num_envs=2)
     check_env_specs(env)
     td = env.rollout(5, break_when_any_done=False)
     assert torch.isfinite(td["next", "observation"]).all()
@@ -102,7 +102,7 @@ def test_every_shipped_map_makes_a_working_env(name):
 
 def test_unknown_map_lists_the_available_maps():
     with pytest.raises(MapError) as e:
-        make_env("areena", num_envs=2)
+        make_nav_env("areena", num_envs=2)
     msg = str(e.value)
     assert "areena" in msg and all(n in msg for n in available_maps())
 
@@ -111,11 +111,11 @@ def test_malformed_map_file_names_the_key(tmp_path):
     p = tmp_path / "lab.yaml"
     p.write_text("size: [10, 10]\nwalls: boundary\nrandom_boxes: {count: 2, size_x: [0.4, 0.6], sise_y: [0.3, 0.5]}\n")
     with pytest.raises(MapError, match=r"random_boxes\.sise_y.*did you mean 'size_y'"):
-        make_env(str(p), num_envs=2)
+        make_nav_env(str(p), num_envs=2)
 
 
 def test_reset_and_step_output_keys():
-    env = make_env("arena", num_envs=2)
+    env = make_nav_env("arena", num_envs=2)
     td = env.reset()
     assert set(td.keys()) == OUTPUT_KEYS
     td["action"] = torch.zeros(2, 2)
@@ -128,7 +128,7 @@ def test_reset_and_step_output_keys():
 
 
 def test_observation_matches_pose_goal_and_ranges():
-    env = make_env("street", num_envs=3)
+    env = make_nav_env("street", num_envs=3)
     td = env.rollout(6, SeededPolicy(0), break_when_any_done=False)["next"]
     pose, goal = td["pose"], td["goal"]
     dist = (goal - pose[..., :2]).norm(dim=-1)
@@ -140,7 +140,7 @@ def test_observation_matches_pose_goal_and_ranges():
 
 
 def test_discrete_action_mode_uses_a_one_hot_spec():
-    env = make_env("empty", num_envs=3, action={"mode": "discrete"}, observation={"normalize": False})
+    env = make_nav_env("empty", num_envs=3, action={"mode": "discrete"}, observation={"normalize": False})
     assert isinstance(env.action_spec, OneHot) and env.action_spec.shape == (3, 7)
     td = env.reset()
     idx = torch.tensor([0, 3, 6])
@@ -151,7 +151,7 @@ def test_discrete_action_mode_uses_a_one_hot_spec():
 
 
 def test_history_observation_size():
-    env = make_env("arena", num_envs=2, observation={"history": 4})
+    env = make_nav_env("arena", num_envs=2, observation={"history": 4})
     assert env.observation_spec["observation"].shape == (2, 96)
     td = env.reset()
     assert torch.equal(td["observation"][:, :24], td["observation"][:, -24:])  # k copies at reset
@@ -165,7 +165,7 @@ def test_history_observation_size():
 
 
 def test_goal_sets_terminated_and_success():
-    env = make_env("arena", num_envs=3, goal_tolerance=50.0)  # every goal is within 50 m
+    env = make_nav_env("arena", num_envs=3, goal_tolerance=50.0)  # every goal is within 50 m
     td = env.reset()
     td["action"] = torch.zeros(3, 2)
     out = env.step(td)["next"]
@@ -176,7 +176,7 @@ def test_goal_sets_terminated_and_success():
 
 def test_collision_sets_terminated_without_success():
     # Full speed straight ahead in a walled room always ends in a wall or a box within ~15 m.
-    env = make_env("arena", num_envs=4, goal_tolerance=1e-3, max_steps=400)
+    env = make_nav_env("arena", num_envs=4, goal_tolerance=1e-3, max_steps=400)
     td = env.rollout(160, constant([1.0, 0.0]), break_when_any_done=False)["next"]
     for i in range(4):
         first = td["done"][i, :, 0].nonzero()[0, 0]
@@ -188,7 +188,7 @@ def test_collision_sets_terminated_without_success():
 
 
 def test_step_limit_sets_truncated():
-    env = make_env("arena", num_envs=2, max_steps=5)
+    env = make_nav_env("arena", num_envs=2, max_steps=5)
     td = env.rollout(12, constant([-1.0, 0.0]), break_when_any_done=False)["next"]  # v = 0, omega = 0
     done = td["done"][..., 0]
     assert done[:, 4].all() and done[:, 9].all() and done.sum() == 4
@@ -197,7 +197,7 @@ def test_step_limit_sets_truncated():
 
 
 def test_episode_statistics_at_done():
-    env = make_env("warehouse", num_envs=4, max_steps=12)
+    env = make_nav_env("warehouse", num_envs=4, max_steps=12)
     r = env.rollout(40, SeededPolicy(1, lo=-0.2, hi=1.0), break_when_any_done=False)
     nxt = r["next"]
     torch.testing.assert_close(nxt["reward"][..., 0], sum(nxt["reward_terms", k][..., 0] for k in PRESETS["classic"]))
@@ -226,7 +226,7 @@ def test_episode_statistics_at_done():
 
 
 def test_partial_reset_leaves_other_envs_bit_identical():
-    env = make_env("street", num_envs=5)
+    env = make_nav_env("street", num_envs=5)
     td = env.reset()
     for _ in range(4):
         td["action"] = torch.full((5, 2), 0.5)
@@ -246,7 +246,7 @@ def test_partial_reset_leaves_other_envs_bit_identical():
 
 
 def test_curriculum_radius_follows_placements_in_a_rollout():
-    env = make_env("arena", num_envs=4, max_steps=6, curriculum={"growth": 0.01})
+    env = make_nav_env("arena", num_envs=4, max_steps=6, curriculum={"growth": 0.01})
     r = env.rollout(30, SeededPolicy(0), break_when_any_done=False)
     # One placement per env at the first reset, and one per finished episode (auto reset;
     # rollout does not reset after its last step).
@@ -262,23 +262,23 @@ def test_curriculum_radius_follows_placements_in_a_rollout():
 
 def test_success_gated_curriculum_in_the_env():
     gated = {"mode": "success", "success_threshold": 0.8, "success_step": 0.25, "success_smoothing": 0.5}
-    win = make_env("arena", num_envs=4, goal_tolerance=50.0, curriculum=gated)
+    win = make_nav_env("arena", num_envs=4, goal_tolerance=50.0, curriculum=gated)
     win.rollout(3, constant([0.0, 0.0]), break_when_any_done=False)
     assert win.curriculum.success_rate.item() > 0.8
     assert win.curriculum.radius.item() == pytest.approx(1.0 + 3 * 0.25)  # grew after each step
-    lose = make_env("arena", num_envs=4, max_steps=2, curriculum=gated)  # time-outs only
+    lose = make_nav_env("arena", num_envs=4, max_steps=2, curriculum=gated)  # time-outs only
     lose.rollout(6, constant([-1.0, 0.0]), break_when_any_done=False)
     assert lose.curriculum.success_rate.item() == 0.0 and lose.curriculum.radius.item() == 1.0
     assert int(lose.curriculum.placements) == 4 + 8  # 12 time-outs, the last 4 not yet reset
 
 
 def test_state_dict_round_trip_through_torch_save(tmp_path):
-    env = make_env("warehouse", num_envs=3, max_steps=5)
+    env = make_nav_env("warehouse", num_envs=3, max_steps=5)
     env.rollout(17, SeededPolicy(0), break_when_any_done=False)
     path = tmp_path / "ckpt.pt"
     torch.save({"env": env.state_dict()}, path)
     sd = torch.load(path, weights_only=True)["env"]
-    restored = make_env("warehouse", num_envs=3, max_steps=5, seed=123)
+    restored = make_nav_env("warehouse", num_envs=3, max_steps=5, seed=123)
     restored.load_state_dict(sd)
     for k in ("radius", "placements", "success_rate"):
         assert torch.equal(getattr(restored.curriculum, k), getattr(env.curriculum, k)), k
@@ -293,7 +293,7 @@ def test_state_dict_round_trip_through_torch_save(tmp_path):
 
 def test_same_seed_same_episodes_and_global_rng_untouched():
     def run(seed):
-        env = make_env("street", num_envs=3, seed=seed, max_steps=8, lidar={"noise_std": 0.05}, robot={"odom_v_noise": 0.1})
+        env = make_nav_env("street", num_envs=3, seed=seed, max_steps=8, lidar={"noise_std": 0.05}, robot={"odom_v_noise": 0.1})
         return env.rollout(20, SeededPolicy(9), break_when_any_done=False)
 
     torch.manual_seed(0)
@@ -307,9 +307,9 @@ def test_same_seed_same_episodes_and_global_rng_untouched():
 
 
 def test_set_seed_reseeds_the_generator():
-    env = make_env("arena", num_envs=2, seed=0)
+    env = make_nav_env("arena", num_envs=2, seed=0)
     env.set_seed(5)
-    fresh = make_env("arena", num_envs=2, seed=5)
+    fresh = make_nav_env("arena", num_envs=2, seed=5)
     assert torch.equal(env.reset()["goal"], fresh.reset()["goal"])
 
 
@@ -318,7 +318,7 @@ def test_set_seed_reseeds_the_generator():
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 def test_non_finite_action_raises_by_default(bad):
-    env = make_env("arena", num_envs=3)
+    env = make_nav_env("arena", num_envs=3)
     td = env.reset()
     td["action"] = torch.tensor([[0.0, 0.0], [bad, 0.0], [0.0, 0.0]])
     with pytest.raises(ValueError, match=r"NaN or inf in envs \[1\].*check_actions=False"):
@@ -330,7 +330,7 @@ def test_action_of_the_wrong_shape_is_refused_by_both_envs(env_kind):
     from torchnav.envs import LineEnv
     from torchnav.tasks import LineConfig
 
-    env = make_env("arena", num_envs=3) if env_kind == "nav" else LineEnv(LineConfig(), num_envs=3)
+    env = make_nav_env("arena", num_envs=3) if env_kind == "nav" else LineEnv(LineConfig(), num_envs=3)
     td = env.reset()
     td["action"] = torch.zeros(3, 3)  # one value too many per env: once silently ignored by NavEnv
     with pytest.raises(ValueError, match=r"action has shape \(3, 3\), expected \(3, 2\)"):
@@ -341,7 +341,7 @@ def test_action_of_the_wrong_shape_is_refused_by_both_envs(env_kind):
 
 
 def test_non_finite_action_without_the_check_stops_the_robot():
-    env = make_env("arena", num_envs=2, check_actions=False)
+    env = make_nav_env("arena", num_envs=2, check_actions=False)
     td = env.reset()
     td["action"] = torch.full((2, 2), math.nan)
     out = env.step(td)["next"]
@@ -353,18 +353,18 @@ def test_non_finite_action_without_the_check_stops_the_robot():
 
 def test_unknown_override_key_names_the_key():
     with pytest.raises(ConfigError, match="grwth.*did you mean 'growth'"):
-        make_env("arena", num_envs=2, curriculum={"grwth": 0.01})
+        make_nav_env("arena", num_envs=2, curriculum={"grwth": 0.01})
     with pytest.raises(ConfigError, match="curriculum.grwth"):
-        make_env("arena", num_envs=2, **{"curriculum.grwth": 0.01})
+        make_nav_env("arena", num_envs=2, **{"curriculum.grwth": 0.01})
     with pytest.raises(ConfigError, match="env.max_steps"):
-        make_env("arena", num_envs=2, max_steps="100")
+        make_nav_env("arena", num_envs=2, max_steps="100")
 
 
 # --------------------------------------------------------------------------- TorchRL composition
 
 
 def test_collector_collects_a_couple_of_batches():
-    env = make_env("arena", num_envs=4, max_steps=7)
+    env = make_nav_env("arena", num_envs=4, max_steps=7)
     collector = Collector(env, RandomPolicy(env.action_spec), frames_per_batch=40, total_frames=80)
     batches = []
     for batch in collector:
@@ -381,11 +381,11 @@ def test_collector_collects_a_couple_of_batches():
 def test_a_loaded_env_continues_its_episodes_and_pool_exactly():
     kw = dict(num_envs=4, max_steps=20, worlds={"families": {"rooms": 1.0, "forest": 1.0}, "difficulty": 0.3},
               reset={"pool": 8, "reuse": 2})
-    env = make_env("arena", seed=3, **kw)
+    env = make_nav_env("arena", seed=3, **kw)
     env.rollout(25, SeededPolicy(1), break_when_any_done=False)  # episodes mid-way, the pool part-used
     sd = env.state_dict()
     assert int(sd["_extra_state"]["pool"]["pos"]) > 0
-    other = make_env("arena", seed=99, **kw)  # another seed: everything must come from the state dict
+    other = make_nav_env("arena", seed=99, **kw)  # another seed: everything must come from the state dict
     other.load_state_dict(sd)
     torch.testing.assert_close(other.state.sim.pose, env.state.sim.pose, rtol=0, atol=0)
     pa, pb = SeededPolicy(2), SeededPolicy(2)
@@ -399,7 +399,7 @@ def test_a_loaded_env_continues_its_episodes_and_pool_exactly():
 
 
 def test_transforms_compose():
-    env = TransformedEnv(make_env("arena", num_envs=3, max_steps=6), Compose(StepCounter(), RewardSum()))
+    env = TransformedEnv(make_nav_env("arena", num_envs=3, max_steps=6), Compose(StepCounter(), RewardSum()))
     check_env_specs(env)
     r = env.rollout(10, SeededPolicy(0), break_when_any_done=False)
     torch.testing.assert_close(r["next", "step_count"][..., 0].float(), r["next", "episode", "length"][..., 0])
@@ -407,13 +407,13 @@ def test_transforms_compose():
     # generator round-trip through the base env's nn.Module state_dict (its "_extra_state").
     sd = env.base_env.state_dict()
     assert int(sd["_extra_state"]["curriculum"]["placements"]) == int(env.base_env.curriculum.placements) > 3
-    fresh = TransformedEnv(make_env("arena", num_envs=3, max_steps=6, seed=9), Compose(StepCounter(), RewardSum()))
+    fresh = TransformedEnv(make_nav_env("arena", num_envs=3, max_steps=6, seed=9), Compose(StepCounter(), RewardSum()))
     fresh.base_env.load_state_dict(sd)
     assert torch.equal(fresh.base_env.curriculum.radius, env.base_env.curriculum.radius)
     assert torch.equal(fresh.base_env._generator.get_state(), env.base_env._generator.get_state())
     torch.testing.assert_close(r["next", "episode_reward"], r["next", "episode", "return"], atol=1e-4, rtol=1e-5)
     frames = TransformedEnv(
-        make_env("arena", num_envs=2),
+        make_nav_env("arena", num_envs=2),
         Compose(CatFrames(N=3, dim=-1, in_keys=["observation"]), ObservationNorm(in_keys=["observation"], loc=0.5, scale=2.0)),
     )
     check_env_specs(frames)
@@ -431,7 +431,7 @@ def test_nav_env_from_config():
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_env_on_cuda():
-    env = make_env("warehouse", num_envs=8, device="cuda")
+    env = make_nav_env("warehouse", num_envs=8, device="cuda")
     check_env_specs(env)
     r = env.rollout(20, break_when_any_done=False)
     assert r.device.type == "cuda" and torch.isfinite(r["next", "observation"]).all()
@@ -440,11 +440,11 @@ def test_env_on_cuda():
 @pytest.mark.slow
 def test_compiled_step_matches_eager():
     """NavEnv(compile_step=True) runs the simulator step through torch.compile: same episodes."""
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
 
     runs = []
     for compiled in (False, True):
-        env = make_env("arena", num_envs=8, seed=3)
+        env = make_nav_env("arena", num_envs=8, seed=3)
         if compiled:
             env.task.compile_step()
         td = env.reset()
@@ -459,9 +459,9 @@ def test_compiled_step_matches_eager():
 
 
 def test_checkpoints_written_before_the_extra_state_hooks_still_load():
-    env = make_env("arena", num_envs=2, max_steps=5)
+    env = make_nav_env("arena", num_envs=2, max_steps=5)
     env.rollout(12, SeededPolicy(0), break_when_any_done=False)
     old = env.get_extra_state()  # the {"curriculum", "generator"} dict older checkpoints hold
-    restored = make_env("arena", num_envs=2, max_steps=5, seed=77)
+    restored = make_nav_env("arena", num_envs=2, max_steps=5, seed=77)
     restored.load_state_dict(old)
     assert torch.equal(restored.curriculum.placements, env.curriculum.placements)

@@ -11,7 +11,7 @@ websockets = pytest.importorskip("websockets")
 
 from websockets.sync.client import connect  # noqa: E402
 
-from torchnav.envs import make_env  # noqa: E402
+from torchnav.envs import make_nav_env  # noqa: E402
 from torchnav.record import LiveView, record_rollout  # noqa: E402
 
 
@@ -26,7 +26,7 @@ def _advertised(ws) -> dict[str, dict]:
 
 
 def test_live_view_streams_an_episode_to_a_websocket_client():
-    env = make_env("arena", num_envs=2, max_steps=20)
+    env = make_nav_env("arena", num_envs=2, max_steps=20)
     with LiveView(env, envs=(1,), port=0, realtime=None) as view:
         assert view.port and view.port > 0
         with connect(f"ws://127.0.0.1:{view.port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"]) as ws:
@@ -52,7 +52,7 @@ def test_live_view_streams_an_episode_to_a_websocket_client():
 
 def test_live_view_refuses_a_bad_pace():
     with pytest.raises(ValueError, match="realtime must be > 0"):
-        LiveView(make_env("arena", num_envs=1), realtime=0)
+        LiveView(make_nav_env("arena", num_envs=1), realtime=0)
 
 
 def test_evaluate_live_option_streams_and_says_where(capsys):

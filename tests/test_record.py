@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from torchnav.envs.nav_env import make_env
+from torchnav.envs.nav_env import make_nav_env
 from torchnav.record import EpisodeRecorder, JsonDecoderFactory, RecordingWarning, read_recording, record_rollout, validate
 from torchnav.record.replay import main as replay_main
 
@@ -25,7 +25,7 @@ STEPS = 60
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    env = make_env("arena", num_envs=6, max_steps=25, seed=1)
+    env = make_nav_env("arena", num_envs=6, max_steps=25, seed=1)
     path = tmp_path_factory.mktemp("rec") / "episodes.mcap"
     with EpisodeRecorder(path, env, envs=(0, 4), metadata={"seed": 1, "checkpoint": "none.pt"}) as rec:
         td = record_rollout(env, None, STEPS, rec)
@@ -128,7 +128,7 @@ def test_episode_world_is_recorded(recorded):
 
 
 def test_write_rollout_from_env_rollout(tmp_path):
-    env = make_env("arena", num_envs=4, max_steps=15, seed=2)
+    env = make_nav_env("arena", num_envs=4, max_steps=15, seed=2)
     td = env.rollout(40, break_when_any_done=False)
     path = tmp_path / "r.mcap"
     with EpisodeRecorder(path, env, envs=(1,)) as rec:
@@ -140,7 +140,7 @@ def test_write_rollout_from_env_rollout(tmp_path):
 
 
 def test_episode_limit_stops_recording(tmp_path):
-    env = make_env("arena", num_envs=3, max_steps=10, seed=0)
+    env = make_nav_env("arena", num_envs=3, max_steps=10, seed=0)
     with EpisodeRecorder(tmp_path / "n.mcap", env, envs=(0, 2), episodes=2, flush_steps=4) as rec:
         td = record_rollout(env, None, 500, rec)
     assert td.shape[1] < 500
@@ -149,7 +149,7 @@ def test_episode_limit_stops_recording(tmp_path):
 
 
 def test_unwritable_path_warns_and_does_not_raise(tmp_path):
-    env = make_env("arena", num_envs=2, max_steps=10, seed=0)
+    env = make_nav_env("arena", num_envs=2, max_steps=10, seed=0)
     blocker = tmp_path / "file"
     blocker.write_text("x")
     with pytest.warns(RecordingWarning, match="recording to"):
@@ -161,7 +161,7 @@ def test_unwritable_path_warns_and_does_not_raise(tmp_path):
 
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
 def test_full_disk_warns_and_training_continues():
-    env = make_env("arena", num_envs=2, max_steps=10, seed=0)
+    env = make_nav_env("arena", num_envs=2, max_steps=10, seed=0)
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         rec = EpisodeRecorder("/dev/full", env)
@@ -174,10 +174,10 @@ def test_full_disk_warns_and_training_continues():
 
 CHILD = textwrap.dedent("""
     import sys, torch
-    from torchnav.envs.nav_env import make_env
+    from torchnav.envs.nav_env import make_nav_env
     from torchnav.record import EpisodeRecorder
     from torchrl.envs.utils import step_mdp
-    env = make_env("arena", num_envs=2, max_steps=8, seed=0)
+    env = make_nav_env("arena", num_envs=2, max_steps=8, seed=0)
     rec = EpisodeRecorder(sys.argv[1], env, envs=(0,), flush_steps=1)
     td = env.reset()
     while True:
@@ -265,10 +265,10 @@ def test_every_recorded_schema_is_one_foxglove_can_parse(tmp_path):
     """No channel's JSON schema nests arrays in arrays, and the events' worlds are flat rows."""
     from mcap.reader import make_reader
 
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
     from torchnav.record import EpisodeRecorder, read_recording, record_rollout
 
-    env = make_env("arena", num_envs=2, max_steps=10)
+    env = make_nav_env("arena", num_envs=2, max_steps=10)
     path = tmp_path / "e.mcap"
     with EpisodeRecorder(path, env, envs=(0, 1), episodes=1) as rec:
         record_rollout(env, None, max_steps=10, recorder=rec)

@@ -10,7 +10,7 @@ from PIL import Image
 
 from torchnav.controllers.line_follower import LineFollower
 from torchnav.envs import make_line_env
-from torchnav.envs.nav_env import make_env
+from torchnav.envs.nav_env import make_nav_env
 from torchnav.record import EpisodeRecorder, read_recording, record_rollout
 from torchnav.record.replay import main as replay_main
 from torchnav.record.replay import render_episode, scene_lines, summary, task_kind
@@ -74,7 +74,7 @@ def test_line_episode_renders_to_gif(line_recording, tmp_path, capsys):
 
 
 def test_nav_recording_still_replays(tmp_path, capsys):
-    env = make_env("arena", num_envs=2, max_steps=10, seed=1)
+    env = make_nav_env("arena", num_envs=2, max_steps=10, seed=1)
     path = tmp_path / "nav.mcap"
     with EpisodeRecorder(path, env, envs=(0,), episodes=1, on_error="raise", metadata={"seed": 1}) as rec:
         record_rollout(env, None, 12, rec)

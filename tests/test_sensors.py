@@ -199,9 +199,9 @@ def test_make_movers_rejects_bad_input():
 
 def test_task_observation_with_imu_and_camera():
     from torchnav.config import ConfigError
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
 
-    env = make_env("arena", num_envs=8, imu={"enabled": True, "gyro_noise": 0.01}, camera={"enabled": True, "n_cols": 16},
+    env = make_nav_env("arena", num_envs=8, imu={"enabled": True, "gyro_noise": 0.01}, camera={"enabled": True, "n_cols": 16},
                    observation={"imu": True, "camera": True})
     td = env.reset()
     assert td["observation"].shape == (8, 20 + 4 + 3 + 16)
@@ -213,15 +213,15 @@ def test_task_observation_with_imu_and_camera():
     assert torch.allclose(obs[:, 24:27], s.imu * torch.tensor([1 / (cfg.robot.v_max * cfg.robot.omega_max)] * 2 + [1 / cfg.robot.omega_max]))
     assert torch.allclose(obs[:, 27:], s.cam_depth / cfg.camera.max_range)
     # The default config observes exactly what it did before.
-    assert make_env("arena", num_envs=2).reset()["observation"].shape == (2, 24)
+    assert make_nav_env("arena", num_envs=2).reset()["observation"].shape == (2, 24)
     with pytest.raises(ConfigError, match="observation.imu needs imu.enabled"):
-        make_env("arena", num_envs=2, observation={"imu": True})
+        make_nav_env("arena", num_envs=2, observation={"imu": True})
     with pytest.raises(ConfigError, match="camera.n_cols"):
-        make_env("arena", num_envs=2, camera={"enabled": True, "n_cols": 0})
+        make_nav_env("arena", num_envs=2, camera={"enabled": True, "n_cols": 0})
     with pytest.raises(ConfigError, match="imu.accel_noise"):
-        make_env("arena", num_envs=2, imu={"enabled": True, "accel_noise": -1.0})
+        make_nav_env("arena", num_envs=2, imu={"enabled": True, "accel_noise": -1.0})
     with pytest.raises(ConfigError, match="unknown key"):
-        make_env("arena", num_envs=2, camera={"colums": 3})
+        make_nav_env("arena", num_envs=2, camera={"colums": 3})
 
 
 # -- recording -----------------------------------------------------------------------------
@@ -233,10 +233,10 @@ def test_imu_and_camera_are_recorded_with_schemas(tmp_path):
     import numpy as np
     from mcap.reader import make_reader
 
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
     from torchnav.record import EpisodeRecorder, JsonDecoderFactory, record_rollout, validate
 
-    env = make_env("arena", num_envs=3, max_steps=50, imu={"enabled": True}, camera={"enabled": True, "n_cols": 24, "n_rows": 10})
+    env = make_nav_env("arena", num_envs=3, max_steps=50, imu={"enabled": True}, camera={"enabled": True, "n_cols": 24, "n_rows": 10})
     path = tmp_path / "s.mcap"
     with EpisodeRecorder(path, env, envs=(1,)) as rec:
         record_rollout(env, None, 4, rec)
@@ -268,12 +268,12 @@ moving_circles: {count: 4, radius: [0.2, 0.3], speed: [0.2, 0.5], clearance: 1.5
 
 
 def test_task_places_movers_with_clearance_and_collides_with_them(tmp_path):
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
     from torchnav.sim import points_clearance
 
     path = tmp_path / "moving.yaml"
     path.write_text(MOVING_MAP)
-    env = make_env(str(path), num_envs=512, seed=3)
+    env = make_nav_env(str(path), num_envs=512, seed=3)
     env.reset()
     s = env._state
     m, mask = s.sim.movers, s.sim.mover_mask
@@ -318,13 +318,13 @@ def test_map_rejects_bad_moving_circles(tmp_path):
 
 
 def test_replay_draws_movers_and_camera(tmp_path):
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
     from torchnav.record import EpisodeRecorder, read_recording, record_rollout
     from torchnav.record.replay import episode_frames, render_episode
 
     path = tmp_path / "moving.yaml"
     path.write_text(MOVING_MAP)
-    env = make_env(str(path), num_envs=2, max_steps=6, camera={"enabled": True, "n_cols": 16, "n_rows": 8})
+    env = make_nav_env(str(path), num_envs=2, max_steps=6, camera={"enabled": True, "n_cols": 16, "n_rows": 8})
     out = tmp_path / "m.mcap"
     with EpisodeRecorder(out, env, envs=(0,), episodes=1) as rec:
         record_rollout(env, None, 6, rec)
@@ -386,12 +386,12 @@ def test_pedestrians_avoid_each_other_and_the_robot():
 
 
 def test_task_places_pedestrians_with_waypoints_in_their_region(tmp_path):
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
 
     path = tmp_path / "peds.yaml"
     path.write_text(MOVING_MAP.replace("speed: [0.2, 0.5], clearance: 1.5, margin: 0.1}",
                                        "speed: [0.2, 0.5], clearance: 1.5, margin: 0.1, motion: pedestrian, waypoints: 3, region: [-4, -3, 4, 3]}"))
-    env = make_env(str(path), num_envs=64, seed=0)
+    env = make_nav_env(str(path), num_envs=64, seed=0)
     td = env.reset()
     s = env._state.sim
     assert s.mover_plan.shape == (64, 4, 4 + 6)
@@ -414,9 +414,9 @@ RANDOMIZE = {"v_max": [0.5, 1.0], "omega_max": [0.5, 1.5], "lin_acc_max": [1.0, 
 
 
 def test_randomized_parameters_lie_in_their_ranges_and_follow_the_seed():
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
 
-    env = make_env("arena", num_envs=512, seed=7, randomize=RANDOMIZE)
+    env = make_nav_env("arena", num_envs=512, seed=7, randomize=RANDOMIZE)
     env.reset()
     p = env._state.env_params
     for name, (lo, hi) in RANDOMIZE.items():
@@ -424,10 +424,10 @@ def test_randomized_parameters_lie_in_their_ranges_and_follow_the_seed():
         assert (v >= lo).all() and (v <= hi).all(), name
         assert v.std() > 0, name  # really varies between envs
     assert set(p.delay.unique().tolist()) == {0, 1, 2}
-    again = make_env("arena", num_envs=512, seed=7, randomize=RANDOMIZE)
+    again = make_nav_env("arena", num_envs=512, seed=7, randomize=RANDOMIZE)
     again.reset()
     assert all(torch.equal(getattr(p, k), getattr(again._state.env_params, k)) for k in RANDOMIZE)
-    other = make_env("arena", num_envs=512, seed=8, randomize=RANDOMIZE)
+    other = make_nav_env("arena", num_envs=512, seed=8, randomize=RANDOMIZE)
     other.reset()
     assert not torch.equal(p.v_max, other._state.env_params.v_max)
     # A new episode draws new parameters.
@@ -481,16 +481,16 @@ def test_randomized_noise_dropout_and_wheel_noise_statistics():
 
 def test_randomize_config_errors_and_evaluation_switch():
     from torchnav.config import ConfigError
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
     from torchnav.evaluation import eval_config
     from torchnav.tasks import NavConfig
 
     for bad, key in (({"dropout": [0.0, 1.5]}, "dropout"), ({"v_max": [1.0, 0.5]}, "v_max"), ({"delay": [0, 1.5]}, "delay"),
                      ({"max_range": [5.0, 20.0]}, "max_range"), ({"wheel_noise": [-0.1, 0.1]}, "wheel_noise")):
         with pytest.raises(ConfigError, match=key):
-            make_env("arena", num_envs=2, randomize=bad)
+            make_nav_env("arena", num_envs=2, randomize=bad)
     with pytest.raises(ConfigError, match="unknown key"):
-        make_env("arena", num_envs=2, randomize={"mass": [1.0, 2.0]})
+        make_nav_env("arena", num_envs=2, randomize={"mass": [1.0, 2.0]})
     cfg = NavConfig.from_dict({"randomize": RANDOMIZE})
     assert eval_config(cfg, randomize_off=True).randomize.ranges() == {}
     assert set(eval_config(cfg, randomize_off=["delay", "dropout"]).randomize.ranges()) == set(RANDOMIZE) - {"delay", "dropout"}

@@ -386,7 +386,7 @@ def test_observation_layout_and_normalisation():
         state, _, _ = start(task)
         state, out = task.step(state, torch.tensor([[0.5, 0.2], [1.0, -1.0], [-1.0, 0.0]]))
         obs = out["observation"]
-        assert obs.shape == (3, 24) and task.obs_dim == 24
+        assert obs.shape == (3, 24) and task.frame_size == 24
         pose, goal = state.sim.pose, state.goal
         dist = (goal - pose[:, :2]).norm(dim=-1)
         bearing = torch.atan2(goal[:, 1] - pose[:, 1], goal[:, 0] - pose[:, 0]) - pose[:, 2]

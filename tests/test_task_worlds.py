@@ -102,7 +102,7 @@ def test_bad_worlds_config_is_named(worlds, match):
 
 
 def test_partial_reset_regenerates_only_the_masked_envs_and_map_path_is_unchanged():
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
     from torchnav.tasks import NavTask
     from torchnav.worlds import slot_counts
 
@@ -116,7 +116,7 @@ def test_partial_reset_regenerates_only_the_masked_envs_and_map_path_is_unchange
     for key in ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask"):
         assert torch.equal(getattr(r.world, key)[keep], getattr(s.world, key)[keep])
     assert torch.equal(r.sim.pose[keep], s.sim.pose[keep]) and not torch.equal(r.goal[mask], s.goal[mask])
-    assert make_env("arena", num_envs=2).task.spec.name == "arena"
+    assert make_nav_env("arena", num_envs=2).task.spec.name == "arena"
 
 
 def test_planners_refuse_procedural_worlds_by_name():

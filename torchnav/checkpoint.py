@@ -1,17 +1,9 @@
 """Checkpoint files that say when they are damaged: content-hashed, finite, written durably.
 
-Every ``actor.pt`` and recipe ``checkpoint.pt`` goes through :func:`save_checked` and
-:func:`load_checked`:
-
-* the payload carries ``"sha256"``, a hash of its content (every tensor's dtype, shape
-  and bytes, every other value's ``repr``, in key order), recomputed at load: a file
-  whose bytes changed reads as damaged instead of loading other weights silently;
-* a floating-point tensor holding NaN or inf is refused at load, naming its key;
-* writes go to a temporary file that is flushed and ``fsync``-ed, then renamed over
-  the target, so a crash leaves the old file or the new one, never a torn one.
-
-Files written before the hash existed (no ``"sha256"`` key) still load, unchecked.
-"""
+Every ``actor.pt`` and recipe ``checkpoint.pt`` goes through :func:`save_checked` (a ``"sha256"``
+of the content; temporary file, ``fsync``, rename) and :func:`load_checked` (refuses a changed
+hash or a NaN/inf tensor, naming the file and key). Files written before the hash existed (no
+``"sha256"`` key) still load, unchecked."""
 
 from __future__ import annotations
 

@@ -1,14 +1,9 @@
 """Evaluate a policy on many seeded episodes at once and summarise with 95% confidence intervals.
 
-One loop for both tasks (:func:`run_batched_episodes`): each env of the batch runs exactly
-one episode, judged by the task's outcome function. Navigation (``run_episodes``) reads
-the outcome at an episode's first ``done``; ``goals anywhere`` evaluation is the default:
-the curriculum is off, so goals are drawn over the whole map. Line following
-(``run_line_episodes``) judges lap completion from random starts.
-
-    res = run_line_episodes(policy, LineConfig(track="course"), n_episodes=1000, seed=0)
-    print(format_lap_summary(summarize_laps(res), title="course"))
-"""
+One loop for both tasks (:func:`run_batched_episodes`): each env of the batch runs exactly one
+episode, judged by the task's outcome function. Navigation (``run_episodes``) reads the outcome at
+an episode's first ``done``, goals anywhere by default; line following (``run_line_episodes``)
+judges lap completion from random starts (docs/line.md, "Evaluating lap completion")."""
 
 from __future__ import annotations
 
@@ -240,12 +235,7 @@ def format_summary(s: dict[str, Any], title: str = "") -> str:
     return format_table(s, title, NAV_OUTCOMES, (("steps_to_goal", "steps"), ("path_ratio", "x straight"), ("return", "")))
 
 
-# -- line following: lap completion from random starts ------------------------------------------
-# Each env runs one episode from its own random start on the track (the config's reset noise
-# applies), judged at its first event: the target number of laps completed (``lap_complete``), or
-# the episode ended without it (``left_line``, ``stalled``, ``collision`` or ``timeout`` at
-# ``cfg.max_steps``). The recipe target, "a full lap of the course from at least 95% of random
-# starts", is ``summarize_laps(...)["lap_complete"]["rate"] >= 0.95``.
+# -- line following: lap completion from random starts (docs/line.md) --------------------------
 
 LINE_OUTCOMES = ("lap_complete", "left_line", "stalled", "collision", "timeout")
 

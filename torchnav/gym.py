@@ -1,31 +1,8 @@
 """Gymnasium interface: the batched tasks as a Gymnasium vector env and as a single env.
 
-``gymnasium`` is an optional dependency (``pip install "torchnav[gym]"``). Importing
-this module registers two ids::
-
-    torchnav/Navigation-v0   torchnav/LineFollowing-v0
-
-    env = gymnasium.make("torchnav/Navigation-v0", map="warehouse")            # one robot
-    envs = gymnasium.make_vec("torchnav/Navigation-v0", num_envs=1024,
-                              vectorization_mode="vector_entry_point")           # the batched sim
-
-Keyword arguments are those of :func:`torchnav.envs.make_env` (``map`` and nested
-``NavConfig`` sections such as ``curriculum={"mode": "fixed"}``) or of
-:func:`torchnav.envs.make_line_env` (``track`` and ``LineConfig`` sections).
-
-Both classes wrap the TorchRL env (:class:`~torchnav.envs.NavEnv` /
-:class:`~torchnav.envs.LineEnv`), so curriculum, rewards and resets are the same as
-in the recipes. Observations are ``float32`` numpy arrays; a continuous action is two
-values in [-1, 1], a discrete one (``action={"mode": "discrete"}``) an integer index.
-
-Autoreset (vector env): ``SAME_STEP``. When an env's episode ends in ``step``, the
-observation returned for it is already the first observation of its next episode;
-the last observation of the finished episode is in ``info["final_obs"]`` and its
-info in ``info["final_info"]`` (both masked by ``info["_final_obs"]`` /
-``info["_final_info"]``). Every step's ``info`` holds the task's outcome flags
-(``success`` and ``collision`` for navigation; ``on_line``, ``left_line``,
-``stalled``, ``collision``, ``lap_completed`` for line following) as bool arrays.
-"""
+Importing this module registers ``torchnav/Navigation-v0`` and ``torchnav/LineFollowing-v0``
+(keyword arguments those of :func:`torchnav.envs.make_nav_env` / :func:`torchnav.envs.make_line_env`).
+Needs the ``gym`` extra. Spaces, autoreset (``SAME_STEP``) and the ``info`` keys: docs/gymnasium.md."""
 
 from __future__ import annotations
 
@@ -44,7 +21,7 @@ import torch
 from tensordict import TensorDict
 
 from .config import ConfigError
-from .envs import LineEnv, NavEnv, make_env, make_line_env
+from .envs import LineEnv, NavEnv, make_nav_env, make_line_env
 
 
 def _spaces(env: NavEnv | LineEnv) -> tuple[spaces.Box, spaces.Space]:
@@ -70,7 +47,7 @@ def _make(kind: str, num_envs: int | None, seed: int | None, device: str, kwargs
                               "vectorization_mode=\"vector_entry_point\")")
         num_envs = 1
     if kind == "navigation":
-        return make_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
+        return make_nav_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
     return make_line_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
 
 
@@ -104,12 +81,15 @@ class TorchnavVectorEnv(VectorEnv):
         self._td = self.env.reset()
         return self._obs(self._td), self._info(self._td)
 
-    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    def _advance(self, action: torch.Tensor) -> TensorDict:
+        """One step of the TorchRL env from the last outputs; its ``"next"`` outputs (no autoreset)."""
         if self._td is None:
             raise RuntimeError("call reset() before step()")
-        td = self._td.clone(False)
-        td.set("action", self._action_tensor(actions))
-        nxt = self.env.step(td)["next"]
+        self._td = self.env.step(self._td.clone(False).set("action", action))["next"]
+        return self._td
+
+    def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        nxt = self._advance(self._action_tensor(actions))
         obs, info = self._obs(nxt), self._info(nxt)
         reward = nxt["reward"].reshape(-1).cpu().numpy()
         terminated = nxt["terminated"].reshape(-1).cpu().numpy()
@@ -124,8 +104,7 @@ class TorchnavVectorEnv(VectorEnv):
             for k, v in self._info(fresh).items():  # the finished envs' flags are their new episode's
                 info[k][done] = v[done]
             info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
-            nxt = fresh
-        self._td = nxt
+            self._td = fresh
         return obs, reward, terminated, truncated, info
 
     def close(self, **kwargs: Any) -> None:
@@ -178,14 +157,8 @@ class TorchnavEnv(gymnasium.Env):
         return obs[0], {k: bool(v[0]) for k, v in info.items()}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        td = self._vec._td
-        if td is None:
-            raise RuntimeError("call reset() before step()")
         a = np.asarray(action)
-        td = td.clone(False)
-        td.set("action", self._vec._action_tensor(a[None] if self._vec._discrete else a.reshape(1, -1)))
-        nxt = self.env.step(td)["next"]
-        self._vec._td = nxt
+        nxt = self._vec._advance(self._vec._action_tensor(a[None] if self._vec._discrete else a.reshape(1, -1)))
         terminated, truncated = bool(nxt["terminated"].item()), bool(nxt["truncated"].item())
         info: dict[str, Any] = {k: bool(v[0]) for k, v in self._vec._info(nxt).items()}
         if terminated or truncated:
@@ -197,7 +170,7 @@ class TorchnavEnv(gymnasium.Env):
 
 
 def navigation_env(seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:
-    """``gymnasium.make("torchnav/Navigation-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_env``."""
+    """``gymnasium.make("torchnav/Navigation-v0", **kwargs)``: one robot; ``kwargs`` as for ``make_nav_env``."""
     return TorchnavEnv(_make("navigation", None, seed, device, kwargs))
 
 

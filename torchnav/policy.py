@@ -1,17 +1,9 @@
 """Saved policies: one small actor format shared by every recipe, evaluation, comparison and export.
 
-Every recipe (TD3, PPO, SAC, DQN) saves its deterministic policy as ``actor.pt``:
-
-    {"format": "torchnav-actor-v2", "obs_size", "out_size", "hidden", "activation",
-     "output": "tanh" | "argmax", "state": Actor.state_dict(), "action_table": (A, 2) or None,
-     "task": "nav" | "line", "task_config": dict, "algorithm": str}
-
-The network is always ``normalise -> Linear/activation stack -> head``: continuous
-policies put ``tanh`` on the head (actions in ``[-1, 1]``), value-based ones take the
-``argmax`` of the Q-values over a discrete action set (``action_table`` holds the
-command of each action). Stochastic policies save their deterministic mean action
-(PPO's and SAC's ``tanh(loc)``), which is what evaluation and export use.
-"""
+Every recipe saves its deterministic policy as ``actor.pt`` (the format, ``FORMAT``, is in
+docs/training.md, "The policy file"): ``normalise -> Linear/activation stack -> head``, with a
+``tanh`` head for continuous actions or the ``argmax`` of Q-values over ``action_table``.
+Stochastic policies save their deterministic mean action (PPO's and SAC's ``tanh(loc)``)."""
 
 from __future__ import annotations
 

@@ -1,20 +1,8 @@
-"""Matplotlib drawing of worlds, robots, lidar rays and goals, one env at a time.
+"""Matplotlib drawing of worlds, robots, lidar rays and goals, one env at a time, and run logs.
 
-Every function draws onto an ``ax`` you pass in and returns it; nothing here
-touches pyplot's global state, so it is safe under the Agg backend, in threads
-and in notebooks. Inputs may be torch tensors (any device, with or without
-grad) or numpy arrays. World frame: x right, y up, metres; yaw in radians CCW.
-
-Typical episode plot::
-
-    from matplotlib.figure import Figure
-    fig = Figure(figsize=(5, 5)); ax = fig.add_subplot()
-    draw_world(ax, world, env=0)
-    draw_rays(ax, state.pose, state.ranges, params.lidar, env=0)
-    draw_robots(ax, state.pose, params.robot_radius, env=0)
-    draw_goal(ax, goal_xy, env=0)
-    fig.savefig("episode.png")
-"""
+Every function draws onto an ``ax`` you pass in (or a new pyplot-free ``Figure``) and returns
+it; nothing touches pyplot's global state, so it is safe under the Agg backend, in threads and in
+notebooks. Inputs may be torch tensors (any device, with or without grad) or numpy arrays."""
 
 from __future__ import annotations
 

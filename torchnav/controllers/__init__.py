@@ -1,14 +1,9 @@
 """Classical baselines for the navigation task, usable as TorchRL policies.
 
->>> from torchnav.controllers import make_controller
->>> ctrl = make_controller("reactive", lookahead=1.5)        # gains as keywords (strict)
->>> td = env.rollout(500, ctrl.bind(env), break_when_any_done=False)
-
-Every controller is a ``TensorDictModuleBase`` reading ``pose``, ``goal``, ``ranges``
-(and ``("episode", "length")`` for the planners) and writing ``action``. Gains, units
-and failure modes: docs/controllers.md. (``torchnav.controllers.line_follower`` holds the
-line-following task's PD baseline; it drives a different env and is not in this registry.)
-"""
+``make_controller("reactive", lookahead=1.5).bind(env)`` reads ``pose``, ``goal``, ``ranges`` (and
+``("episode", "length")`` for the planners) and writes ``action``. Gains, units and failure modes:
+docs/controllers.md. ``torchnav.controllers.line_follower`` holds the line-following task's PD
+baseline; it drives a different env and is not in this registry."""
 
 from __future__ import annotations
 

@@ -1,14 +1,9 @@
 """What every classical controller shares: TensorDict policy plumbing, twist -> action, gains.
 
-A controller is an ``nn.Module`` and a TensorDict module: ``controller(td)`` reads
-the env outputs ``pose`` ``(B, 3)`` [x m, y m, theta rad], ``goal`` ``(B, 2)`` m
-and ``ranges`` ``(B, R)`` m (raw lidar) and writes ``action`` ``(B, 2)`` in the
-env's continuous convention (see ``NavTask.command``). It acts on the whole batch
-with tensor operations. The env's ``NavConfig`` fixes the speed limits, the lidar
-layout and whether the robot may reverse; pass it at construction or call
-``bind(env)``, which adopts ``env.cfg`` (``torchnav.evaluation`` binds every policy
-that has a ``bind`` method to each env it creates).
-"""
+A controller reads ``pose`` ``(B, 3)``, ``goal`` ``(B, 2)`` and ``ranges`` ``(B, R)`` and writes
+``action`` ``(B, 2)`` (the env's continuous convention, ``NavTask.command``) for the whole batch.
+The ``NavConfig`` given at construction, or adopted by ``bind(env)``, fixes the speed limits,
+the lidar layout and whether it may reverse (docs/controllers.md)."""
 
 from __future__ import annotations
 

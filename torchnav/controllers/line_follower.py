@@ -22,8 +22,9 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from ..config import ConfigError, from_dict
+from ..config import ConfigError
 from ..tasks.line_config import LineConfig
+from .base import parse_gains
 
 
 @dataclass(frozen=True)
@@ -43,10 +44,7 @@ class LineFollower(TensorDictModuleBase):
 
     def __init__(self, cfg: LineConfig | None = None, gains: LineFollowerGains | Mapping[str, Any] | None = None):
         super().__init__()
-        if gains is None or isinstance(gains, LineFollowerGains):
-            self.gains = gains or LineFollowerGains()
-        else:
-            self.gains = from_dict(LineFollowerGains, gains, "line_follower")
+        self.gains = parse_gains(LineFollowerGains, gains, "line_follower")
         self.configure(cfg or LineConfig())
 
     def configure(self, cfg: LineConfig) -> None:

@@ -1,14 +1,8 @@
-"""What NavEnv and LineEnv share: the batch, the explicit generator, the action and done
-specs, the NaN-action check, resets and steps around a pure task, the current task state
-and the generator's checkpoint state.
+"""What NavEnv and LineEnv share: the batch, the explicit generator, the specs every task has,
+the action checks, resets and steps around a pure task, and the checkpoint state.
 
-A task env subclasses :class:`BatchedEnv`, builds its specs with ``_make_specs(**fields)``
-and fills in the hooks: ``_new_state(mask)`` (fresh episodes everywhere, or where ``mask``
-is True), ``_reset_view(state)`` (the observation and outcome flags right after a reset),
-``_after_step(out)`` (bookkeeping such as a curriculum), ``_task_outputs(state)`` (its
-outputs beyond those every task has) and ``_episode_stats(state)`` (its running episode
-statistics beyond ``return`` and ``length``).
-"""
+A task env subclasses :class:`BatchedEnv`, builds its specs with ``_make_specs(**fields)`` and
+fills in the hooks listed in docs/api.md (``torchnav.envs``)."""
 
 from __future__ import annotations
 
@@ -32,12 +26,17 @@ class BatchedEnv(EnvBase):
     """``batch_size=(num_envs,)`` env stepping a pure task with one ``torch.Generator`` seeded by ``seed``."""
 
     _has_dynamic_specs = False
+    config_class: type = object  # the task's config (its default when ``cfg`` is None) and the task
+    task_class: type = object
 
-    def __init__(self, num_envs: int, device: torch.device | str, seed: int | None) -> None:
+    def __init__(self, cfg: Any = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0) -> None:
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(0 if seed is None else int(seed))
         self._state: Any = None
+        self.cfg = cfg or self.config_class()
+        self.task = self.task_class(self.cfg, num_envs, device=self.device)
+        self._make_specs()
 
     def _flag_spec(self) -> Categorical:
         return Categorical(2, shape=(*self.batch_size, 1), dtype=torch.bool, device=self.device)

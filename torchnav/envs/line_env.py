@@ -35,13 +35,7 @@ class LineEnv(BatchedEnv):
     # For torchnav.record: the flags that say why an episode terminated, in order of precedence.
     end_reasons = ("collision", "left_line", "stalled")
 
-    def __init__(self, cfg: LineConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
-        cfg = cfg or LineConfig()
-        super().__init__(num_envs, device, seed)
-        self.cfg = cfg
-        self.task = LineTask(cfg, num_envs, device=self.device)
-        self._state: LineState | None = None
-        self._make_specs()
+    config_class, task_class = LineConfig, LineTask
 
     @property
     def track(self):

@@ -14,6 +14,7 @@ import torch
 from torchrl.data import Bounded, Unbounded
 
 from ..config import merge, to_dict
+from ..deprecation import renamed_function
 from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes, after_family_episodes
 from .base import BatchedEnv
 
@@ -21,17 +22,14 @@ from .base import BatchedEnv
 class NavEnv(BatchedEnv):
     """Batched lidar navigation (see docs/tasks.md for observation, action and reward)."""
 
+    config_class, task_class = NavConfig, NavTask
+
     def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0,
                  compile_step: bool = False):
-        cfg = cfg or NavConfig()
-        super().__init__(num_envs, device, seed)
-        self.cfg = cfg
-        self.task = NavTask(cfg, num_envs, device=self.device)
+        super().__init__(cfg, num_envs, device, seed)
         if compile_step:  # the simulator step through torch.compile (not TorchRL's `compile`, which compiles the whole env step)
             self.task.compile_step()
         self.restart_curriculum()
-        self._state: NavState | None = None
-        self._make_specs()
 
     def restart_curriculum(self) -> None:
         """Put the curriculum back to its initial state (goal radius, world difficulties)."""
@@ -93,11 +91,14 @@ class NavEnv(BatchedEnv):
             t._pool_pos, t._pool_passes = (0, 0) if pool is None else (int(pool["pos"]), int(pool["passes"]))
 
 
-def make_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
+def make_nav_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
     """Build a ``NavEnv`` from keyword overrides of ``NavConfig`` (nested dicts for sections).
 
-    Example: ``make_env("warehouse", 256, curriculum={"growth": 0.01}, reward={"preset": "shaped"})``.
+    Example: ``make_nav_env("warehouse", 256, curriculum={"growth": 0.01}, reward={"preset": "shaped"})``.
     Unknown keys raise a ConfigError naming the key.
     """
     cfg = NavConfig.from_dict(merge(to_dict(NavConfig()), {"map": map, **overrides}))
     return NavEnv(cfg, num_envs=num_envs, device=device, seed=seed)
+
+
+make_env = renamed_function(make_nav_env, "torchnav.envs.make_env")

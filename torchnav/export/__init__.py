@@ -1,26 +1,8 @@
 """Export a trained torchnav actor for deployment: ONNX, and dependency-free C99 for microcontrollers.
 
-Command line (see docs/export.md)::
-
-    python -m torchnav.export CHECKPOINT --onnx out.onnx --c out_dir/ [--name policy] [--verify 1000] [--tolerance 1e-5]
-                              [--weights float32|float16|int8] [--target host|cortex-m4f]
-
-Python::
-
-    from torchnav.export import export
-    report = export("checkpoints/td3_arena_actor.pt", onnx_path="actor.onnx", c_dir="actor_c")
-
-Both verify the exports against PyTorch (float32) on random observations and raise
-``VerificationError`` when the largest absolute error exceeds the tolerance. The ONNX
-part needs the ``export`` extra (``pip install 'torchnav[export]'``: onnx, onnxruntime);
-the C part needs nothing but a C compiler to verify. ``weights`` shrinks the C export's
-weight storage (float16, or int8 with a scale per output row); the C code is then verified
-against PyTorch running the same dequantised weights (``quantized_actor``).
-``target="cortex-m4f"`` adds a bare-metal build for a Cortex-M4F (startup code, linker
-script, Makefile, test firmware; ``export.cortex_m``), verified in QEMU when
-``arm-none-eabi-gcc`` and ``qemu-system-arm`` are installed, with its flash, RAM and
-executed instructions per inference.
-"""
+``export(checkpoint, onnx_path=..., c_dir=...)`` and ``python -m torchnav.export`` write the files
+and verify them against PyTorch on random observations (``VerificationError`` beyond the
+tolerance); the options (quantised weights, the Cortex-M4F target) are in docs/export.md."""
 
 from __future__ import annotations
 

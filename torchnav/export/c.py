@@ -1,19 +1,9 @@
 """Dependency-free C99 export of a torchnav actor, for microcontrollers.
 
-``export_c(net, out_dir, name)`` writes
-
-- ``<name>.h``: sizes (``<NAME>_OBS_SIZE``, ``<NAME>_ACT_SIZE``, ...) and prototypes;
-- ``<name>.c``: the weights as ``static const`` arrays (row-major ``(out, in)``,
-  ``w[o * IN + i]``, as in ``nn.Linear``) of ``float``, of float16 bit patterns
-  (``uint16_t``, converted to float as they are used) or of ``int8_t`` with one float
-  scale per row (``Network.weights``, see ``common.quantize``), the observation
-  normalisation baked in, and
-  ``void <name>_forward(const float *obs, float *action)``: two static buffers of the
-  widest layer, no malloc, no libm except ``tanhf`` (tanh layers and heads only);
-- ``<name>_test.c``: reads observations (whitespace-separated floats) from stdin and
-  prints one line per observation (``%.9g``); ``verify_c`` compiles it with the system
-  compiler (``-Wall -Werror -std=c99 -O2``) and compares it against PyTorch.
-"""
+``export_c(net, out_dir, name)`` writes ``<name>.h``, ``<name>.c`` (weights as ``static const``
+float, float16 or int8 arrays, normalisation baked in, ``<name>_forward`` with two static
+buffers and no malloc) and ``<name>_test.c``, which ``verify_c`` compiles and compares with
+PyTorch. The files' contents: docs/export.md."""
 
 from __future__ import annotations
 
@@ -21,14 +11,13 @@ import keyword
 import os
 import re
 import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .common import Network, compare
+from .common import Network, compare, outputs, run_tool
 
 C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
 _C_KEYWORDS = set("auto break case char const continue default do double else enum extern float for goto if inline int "
@@ -254,25 +243,18 @@ def compile_test(out_dir: str | Path, name: str = "policy", compiler: str | None
     out_dir = Path(out_dir)
     exe = Path(workdir or out_dir) / f"{name}_test"
     cmd = [compiler, *C_FLAGS, str(out_dir / f"{name}.c"), str(out_dir / f"{name}_test.c"), "-o", str(exe), "-lm"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"C compilation failed ({' '.join(cmd)}):\n{r.stdout}{r.stderr}")
+    run_tool(cmd, "C compilation")
     return exe
 
 
 def run_c(exe: str | Path, obs: np.ndarray, net: Network) -> dict[str, np.ndarray]:
     """Run the compiled test program on ``obs`` ``(n, obs_size)``; keys as in ``common.reference``."""
     text = "\n".join(" ".join("%.9g" % v for v in row) for row in np.asarray(obs, dtype=np.float32))
-    r = subprocess.run([str(exe)], input=text + "\n", capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"{exe} failed with exit code {r.returncode}: {r.stderr}")
+    r = run_tool([str(exe)], "the C test program", input=text + "\n")
     vals = np.array([[float(v) for v in line.split()] for line in r.stdout.splitlines() if line.strip()], dtype=np.float64)
     if vals.shape[0] != obs.shape[0]:
         raise RuntimeError(f"{exe} printed {vals.shape[0]} lines for {obs.shape[0]} observations")
-    if net.output == "tanh":
-        return {"action": vals}
-    a = net.act_size
-    return {"index": vals[:, 0].astype(np.int64), "action": vals[:, 1:1 + a], "q": vals[:, 1 + a:]}
+    return outputs(vals, net)
 
 
 def verify_c(out_dir: str | Path, net: Network, ref: dict[str, np.ndarray], obs: np.ndarray, tolerance: float,

@@ -1,25 +1,15 @@
 """What every exporter shares: the network as plain float32 arrays, the PyTorch reference and test inputs.
 
-An exported policy is always the ``torchnav.policy.Actor`` computation
-
-    x = (obs - obs_loc) / obs_scale                 (obs_size,)
-    x = act(W_k x + b_k)   for each hidden layer    W_k: (out, in), row-major as in nn.Linear
-    y = W_L x + b_L                                 (out_size,)
-    tanh head:   action = tanh(y)                   (out_size,) in [-1, 1]
-    argmax head: index = argmax(y), action = action_table[index]   (2,)
-
-The weight matrices W_k can be stored as float32 (exact), float16 (IEEE half, rounded
-to nearest even) or int8 with one float32 scale per output row (symmetric per-channel
-quantisation, q = round(W / s), s = max|row| / 127, so W ~= s * q). Biases, the
-normalisation and all arithmetic stay float32: only the weights' storage shrinks.
-``quantize(net, weights)`` gives the network with those weights (``layers`` then hold
-the dequantised float32 values, which ``quantized_actor`` puts into a PyTorch actor:
-the reference the quantised C code is verified against and evaluated with).
-"""
+The network computes what ``torchnav.policy.Actor`` does (docs/export.md). Its weight matrices
+can be stored as float32, float16 (IEEE half, rounded to nearest even) or int8 with one float32
+scale per output row (``q = round(W / s)``, ``s = max|row| / 127``); biases, the normalisation
+and all arithmetic stay float32. ``quantize(net, weights)`` gives the network with the
+dequantised weights, which ``quantized_actor`` puts into the PyTorch reference."""
 
 from __future__ import annotations
 
 import copy
+import subprocess
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -204,6 +194,23 @@ def reference(actor: Actor, obs: np.ndarray, action_table: np.ndarray | None = N
         return {"action": y}
     idx = y.argmax(-1)
     return {"action": action_table[idx], "index": idx, "q": y}
+
+
+def outputs(vals: np.ndarray, net: Network) -> dict[str, np.ndarray]:
+    """An exported program's output rows ``(n, width)`` as :func:`reference` gives them: the action,
+    or (argmax) the index, the action and the Q-values."""
+    if net.output == "tanh":
+        return {"action": vals}
+    a = net.act_size
+    return {"index": vals[:, 0].astype(np.int64), "action": vals[:, 1:1 + a], "q": vals[:, 1 + a:]}
+
+
+def run_tool(cmd: list[str], what: str, **kw: Any) -> subprocess.CompletedProcess:
+    """Run a compiler, the test program or QEMU; ``RuntimeError`` with its output when it fails."""
+    r = subprocess.run(cmd, capture_output=True, text=True, **kw)
+    if r.returncode != 0:
+        raise RuntimeError(f"{what} failed (exit {r.returncode}: {' '.join(cmd)}):\n{r.stdout}{r.stderr}")
+    return r
 
 
 def compare(ref: dict[str, np.ndarray], got: dict[str, np.ndarray], tolerance: float) -> dict[str, Any]:

@@ -1,34 +1,14 @@
 """Bare-metal build of the C export for a Cortex-M4F, run and measured in QEMU.
 
-``export_cortex_m4f(net, out_dir, name)`` writes, beside ``<name>.h``/``<name>.c`` (which it
-does not change):
-
-- ``<name>_m4.c``: a test firmware ``main``: reads observations (raw little-endian float32,
-  ``<NAME>_OBS_SIZE`` per record) from the host file ``obs.bin`` over Arm semihosting,
-  calls ``<name>_forward`` on each, writes the outputs as raw float32 to ``out.bin``
-  (discrete policies: index, action, Q-values), times every call with SysTick, measures
-  the stack high-water mark, and prints one summary line (``key=value``);
-- ``startup_m4.c``: vector table and reset handler (copy ``.data``, zero ``.bss``,
-  enable the FPU, call ``main``, exit through semihosting with its status);
-- ``mps2_an386.ld``: the linker script of QEMU's ``mps2-an386`` board (Cortex-M4 with
-  FPU; code at 0x00000000, RAM at 0x20000000);
-- ``Makefile``: ``make`` builds ``<name>_m4.elf`` with ``arm-none-eabi-gcc`` (hardware
-  float ``-mfloat-abi=hard -mfpu=fpv4-sp-d16``), ``make run`` runs it in ``qemu-system-arm``.
-
-``verify_cortex_m4f`` builds it in a temporary folder with the same flags, runs it under
-``qemu-system-arm -icount shift=0`` (one instruction = 1 ns of virtual time, so SysTick
-counts executed instructions; a calibration loop of known length converts ticks to
-instructions), compares the outputs with PyTorch and reports flash and RAM from the ELF.
-Board-specific: the linker script's memory map, the vector table's length (16 system
-vectors, no device interrupts) and semihosting (a real board needs a debugger attached,
-or a UART instead).
-"""
+``export_cortex_m4f(net, out_dir, name)`` writes a test firmware (``<name>_m4.c``), startup code,
+the linker script of QEMU's ``mps2-an386`` board and a Makefile beside the C export;
+``verify_cortex_m4f`` builds and runs it under ``qemu-system-arm -icount shift=0`` and compares
+its outputs with PyTorch. The files, the measurement and what is board-specific: docs/export.md."""
 
 from __future__ import annotations
 
 import re
 import shutil
-import subprocess
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -36,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from .c import write_files
-from .common import Network, compare
+from .common import Network, compare, outputs, run_tool
 
 TARGETS = ("host", "cortex-m4f")
 #: Debian/Ubuntu packages that provide the cross compiler, its C library and the emulator.
@@ -314,17 +294,10 @@ def export_cortex_m4f(net: Network, out_dir: str | Path, name: str = "policy") -
                                  "Makefile": _makefile(name)})
 
 
-def _run(cmd: list[str], what: str, **kw: Any) -> subprocess.CompletedProcess:
-    r = subprocess.run(cmd, capture_output=True, text=True, **kw)
-    if r.returncode != 0:
-        raise RuntimeError(f"{what} failed (exit {r.returncode}: {' '.join(cmd)}):\n{r.stdout}{r.stderr}")
-    return r
-
-
 def _sizes(elf: Path, objects: list[Path]) -> dict[str, int]:
     """Section sizes (``arm-none-eabi-size -A``) of the ELF and of the policy's object file."""
     def sections(path: Path) -> dict[str, int]:
-        r = _run([CROSS_SIZE, "-A", str(path)], "arm-none-eabi-size")
+        r = run_tool([CROSS_SIZE, "-A", str(path)], "arm-none-eabi-size")
         out = {}
         for line in r.stdout.splitlines():
             m = re.match(r"^(\.\S+)\s+(\d+)\s+\d+", line)
@@ -355,9 +328,9 @@ def build_cortex_m4f(out_dir: str | Path, name: str = "policy", workdir: str | P
     work = Path(workdir or out_dir)
     flags = [*CPU_FLAGS, *C_FLAGS]
     obj = work / f"{name}.o"
-    _run([CROSS_CC, *flags, "-c", str(out_dir / f"{name}.c"), "-o", str(obj)], "cross-compiling the policy")
+    run_tool([CROSS_CC, *flags, "-c", str(out_dir / f"{name}.c"), "-o", str(obj)], "cross-compiling the policy")
     elf = work / f"{name}_m4.elf"
-    _run([CROSS_CC, *flags, "-T", str(out_dir / LINKER_SCRIPT), *LD_FLAGS, str(obj),
+    run_tool([CROSS_CC, *flags, "-T", str(out_dir / LINKER_SCRIPT), *LD_FLAGS, str(obj),
           str(out_dir / f"{name}_m4.c"), str(out_dir / "startup_m4.c"), *LIBS, "-o", str(elf)], "cross-compiling the firmware")
     return elf, _sizes(elf, [obj])
 
@@ -368,7 +341,7 @@ def run_qemu(elf: str | Path, obs: np.ndarray, net: Network, workdir: str | Path
     workdir = Path(workdir)
     np.ascontiguousarray(obs, dtype="<f4").tofile(workdir / "obs.bin")
     (workdir / "out.bin").unlink(missing_ok=True)
-    r = _run([QEMU, *QEMU_ARGS, "-kernel", str(Path(elf).resolve())], "running the firmware in QEMU", cwd=workdir, timeout=timeout)
+    r = run_tool([QEMU, *QEMU_ARGS, "-kernel", str(Path(elf).resolve())], "running the firmware in QEMU", cwd=workdir, timeout=timeout)
     text = r.stdout + r.stderr
     m = re.search(r"n=(\d+) ticks=(\d+) cal_ticks=(\d+) cal_insns=(\d+) stack=(\d+)", text)
     if m is None:
@@ -377,12 +350,8 @@ def run_qemu(elf: str | Path, obs: np.ndarray, net: Network, workdir: str | Path
     if summary["n"] != len(obs):
         raise RuntimeError(f"the firmware ran {summary['n']} observations of {len(obs)}")
     vals = np.fromfile(workdir / "out.bin", dtype="<f4").astype(np.float64)
-    a = net.act_size
-    width = 1 + a + net.out_size if net.output == "argmax" else a
-    vals = vals.reshape(len(obs), width)
-    if net.output == "tanh":
-        return {"action": vals}, summary
-    return {"index": vals[:, 0].astype(np.int64), "action": vals[:, 1:1 + a], "q": vals[:, 1 + a:]}, summary
+    width = 1 + net.act_size + net.out_size if net.output == "argmax" else net.act_size
+    return outputs(vals.reshape(len(obs), width), net), summary
 
 
 def verify_cortex_m4f(out_dir: str | Path, net: Network, ref: dict[str, np.ndarray], obs: np.ndarray, tolerance: float,

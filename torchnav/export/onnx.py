@@ -1,19 +1,7 @@
-"""ONNX export of a torchnav actor, built node by node with ``onnx.helper``.
+"""ONNX export of a torchnav actor, built node by node with ``onnx.helper`` (opset 17, dynamic batch).
 
-Why not ``torch.onnx.export``: in torch 2.13 its default (dynamo) exporter needs the
-extra ``onnxscript`` package, and the TorchScript exporter (``dynamo=False``) is
-deprecated. The actor is a fixed chain of a handful of standard operators, so writing
-the graph directly needs only ``onnx``, gives the exact input/output names and the
-argmax + table lookup of discrete policies, and does not change with torch versions.
-
-Graph (opset 17, batch dimension ``batch`` dynamic)::
-
-    observation (batch, obs_size) float32
-      -> Sub(obs_loc) -> Div(obs_scale) -> [Gemm(W, b, transB=1) -> Relu|Tanh] * hidden -> Gemm
-      -> tanh head:   Tanh                                   -> action (batch, act_size)
-      -> argmax head: q_values (batch, A) -> ArgMax -> action_index (batch,) int64
-                                              -> Gather(action_table) -> action (batch, 2)
-"""
+Not ``torch.onnx.export``: it needs ``onnxscript`` (dynamo) or is deprecated (TorchScript); the
+actor's fixed chain of standard operators needs only ``onnx``. The graph: docs/export.md."""
 
 from __future__ import annotations
 

@@ -1,17 +1,10 @@
 """Live view: chosen envs of a batch streamed to the Foxglove app over foxglove-sdk's WebSocket server.
 
-The same messages, topics and schemas as an MCAP recording (``EpisodeRecorder``), sent
-as they are made instead of written to a file:
+The same messages, topics and schemas as an MCAP recording (``EpisodeRecorder``), sent as they
+are made; ``realtime`` paces the stream. Connecting and the layout: docs/foxglove.md.
 
-    from torchnav.record import LiveView, record_rollout
     with LiveView(env, envs=(0, 1), port=8765) as view:   # view.port: where to connect
-        record_rollout(env, policy, max_steps=1000, recorder=view)
-
-In the Foxglove app: *Open connection* -> *Foxglove WebSocket* -> ``ws://localhost:8765``,
-then load ``docs/foxglove_layout.json`` for the same panels as a recording. Messages carry
-the simulation's own timestamps (s since the view opened); ``realtime`` paces the stream
-(1.0: one simulated second per wall-clock second; None: as fast as the simulator runs).
-"""
+        record_rollout(env, policy, max_steps=1000, recorder=view)"""
 
 from __future__ import annotations
 

@@ -1,32 +1,9 @@
 """Episode recorder: a few envs of a batch -> an MCAP file that opens in Foxglove.
 
-Messages are JSON with JSON Schemas (Foxglove's well-known ``foxglove.*`` schemas,
-generated from the pinned foxglove-sdk, and torchnav's own ``torchnav.*``), in
-zstd-compressed chunks. Times are simulation time: each recorded env has its own
-clock that advances ``dt`` per step, and one extra ``dt`` between an episode's end
-and the next episode's start, so every channel's timestamps increase strictly.
-
-Topics, for each recorded env ``i`` (frames ``env{i}/world`` -> ``env{i}/base_link``
--> ``env{i}/laser``)::
-
-    /env{i}/tf            foxglove.FrameTransforms   world -> robot, robot -> laser
-    /env{i}/scan          foxglove.LaserScan         raw lidar, in env{i}/laser
-    /env{i}/scene         foxglove.SceneUpdate       walls, boxes, circles, goal, robot, trail
-    /env{i}/odom          foxglove.Odometry          true pose and twist
-    /env{i}/odom_estimate foxglove.Odometry          odometry estimate (dead reckoning)
-    /env{i}/action        torchnav.Action            stamped at the state it was chosen in
-    /env{i}/reward        torchnav.Reward            stamped at the state it led to
-    /env{i}/events        torchnav.EpisodeEvent      start (with the world) / success / collision / timeout
-
-Crash safety: the metadata record and every chunk go to disk as soon as they are
-complete, and the chunk in progress is closed after every batch of steps in which
-an episode ended (and at least every ``flush_seconds``). A file cut short by
-SIGKILL has no summary section but is readable by scanning
-(:func:`torchnav.record.reader.read_recording`); SIGTERM, Ctrl-C and exceptions
-unwind through :meth:`EpisodeRecorder.close`, which writes a complete file.
-Write errors (full disk, unwritable path) are reported once as a warning and turn
-the recorder off; training goes on.
-"""
+JSON messages with JSON Schemas (``schemas.py``) in zstd-compressed chunks, stamped in simulation
+time (strictly increasing on every channel). The topics, frames and crash safety (every finished
+chunk is on disk; a file cut short still reads) are in docs/foxglove.md. Write errors are reported
+once as a warning and turn the recorder off; training goes on."""
 
 from __future__ import annotations
 

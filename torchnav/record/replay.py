@@ -1,19 +1,9 @@
 """Summarise a recording and render an episode to GIF or MP4, without Foxglove.
 
-Usage::
-
-    python -m torchnav.record.replay FILE.mcap                      # summary of episodes
-    python -m torchnav.record.replay FILE.mcap --out ep.gif         # animate the first episode
-    python -m torchnav.record.replay FILE.mcap --env 0 --episode 2 --out ep.mp4 --fps 20 --stride 2
-
-MP4 needs ffmpeg on the PATH; GIF needs only Pillow (a matplotlib dependency).
-The animation shows the map with the episode's obstacles, the robot, its lidar
-rays, the goal and the trail, next to the reward of every step and the return.
-Line-following recordings (episodes without a goal) show the track (the scene's
-static line entities, e.g. ``track``) on a dark floor, the robot and its path,
-and no goal or rays (the forward ray only if the distance sensor is on); their
-summary counts the termination reasons (``left_line``, ``stalled``, ...).
-"""
+``python -m torchnav.record.replay FILE.mcap [--env 0 --episode 2 --out ep.gif|ep.mp4]``
+(MP4 needs ffmpeg; docs/foxglove.md). Navigation episodes show the obstacles, robot, rays, goal
+and trail beside the rewards; line-following ones the track on a dark floor and the robot's
+path, and their summary counts the termination reasons."""
 
 from __future__ import annotations
 

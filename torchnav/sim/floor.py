@@ -1,34 +1,9 @@
-"""Downward-facing reflectance sensors over a floor line (tape on a floor).
+"""Downward-facing reflectance sensors over a floor line (tape on a floor), as pure tensor functions.
 
-A line is a set of centreline segments ``(S, 4)`` ``[x1, y1, x2, y2]`` (m) and a
-width ``w``: the floor is "line" wherever the distance ``d`` to the nearest
-centreline segment is below ``w / 2``. Every env sees the same line, so the
-segments carry no batch dimension.
-
-Each sensor looks at a disc of radius ``r`` on the floor (its footprint) and reads
-the fraction of that disc covered by the line. Against a straight strip the
-fraction is exact::
-
-    coverage(d) = F(w/2 - d) - F(-w/2 - d),
-    F(t) = (acos(-u) + u sqrt(1 - u^2)) / pi,  u = clamp(t / r, -1, 1)
-
-where ``F(t)`` is the fraction of the disc lying left of a chord at offset ``t``
-from its centre. At corners and crossings the strip is the union of the nearest
-segments' strips, which the nearest-distance formula approximates (well for
-radii much larger than ``r``).
-
-Modes (``FloorSensorParams.mode``):
-
-* ``analog``: coverage plus Gaussian noise (explicit generator), clamped to [0, 1];
-* ``binary``: 1.0 where the (noisy) coverage exceeds ``threshold``, else 0.0;
-* ``smooth``: ``sigmoid((w/2 + r - d) / softness)``, a differentiable stand-in whose
-  gradient never vanishes (useful for gradient-based control through the sensor).
-
-Distances come from a :class:`SegmentGrid`: a uniform grid whose cells list the
-segments that can lie within ``reach`` of any point in the cell, so a query costs
-``M`` (the longest list) distance evaluations instead of ``S``. Distances beyond
-``reach`` read as ``reach``.
-"""
+Sensor positions, the exact coverage of a sensor's disc by a straight strip, the ``analog``,
+``binary`` and ``smooth`` modes, and a :class:`SegmentGrid` whose cells list the segments within
+``reach`` (a query costs ``M`` distances instead of ``S``; beyond ``reach`` reads ``reach``).
+Every env sees the same line. The model and its formula: docs/line.md, "Sensor model"."""
 
 from __future__ import annotations
 
@@ -40,13 +15,9 @@ from torch import Tensor
 
 from .geometry import segment_distance
 from .math import rotate
+from .params import _require
 
 FLOOR_MODES = ("analog", "binary", "smooth")
-
-
-def _require(cond: bool, msg: str) -> None:
-    if not cond:
-        raise ValueError(msg)
 
 
 @dataclass(frozen=True)

@@ -1,18 +1,8 @@
 """A planar IMU: body-frame linear acceleration and yaw rate from the kinematics.
 
-The robot moves at the applied twist ``(v, omega)``, held constant over each step
-(``kinematics.py``). Its body-frame acceleration is then
-
-* forward (x): ``(v_new - v_old) / dt``, the change of speed over the step;
-* left (y): ``v * omega``, the centripetal acceleration of the arc (``v^2 / r``);
-
-and the gyro reads ``omega``. Gravity is not included (the world is planar). A
-reading is ``true + bias + noise``: the bias follows a random walk of
-``bias_walk * sqrt(dt)`` per step and the white noise has std ``noise`` per
-reading, both drawn from the step's generator (no generator: no noise, no walk).
-With a finite ``rate`` (Hz) the reading is sample-and-hold: it changes only on the
-steps during which a sample tick ``k / rate`` falls.
-"""
+Forward ``(v_new - v_old) / dt``, left ``v * omega`` (centripetal), gyro ``omega``; no gravity. A
+reading is ``true + bias + noise`` (bias random walk and white noise from the step's generator; none
+without one), sample-and-hold at a finite ``rate``. The model in full: docs/sim.md, "IMU"."""
 
 from __future__ import annotations
 

@@ -1,28 +1,10 @@
 """Domain randomisation: per-env robot and sensor parameters that vary between episodes.
 
-A :class:`EnvParams` holds, for every env of a batch, the quantities that
-``SimParams`` gives as one float: speed and acceleration limits, the actuator delay
-(whole steps), the std of noise on the wheel speeds, the lidar's range noise, dropout
-rate, angular offset and maximum range, and the robot's radius. Passed to
-``step(..., env_params=...)`` (and ``init_state``) they replace ``SimParams``' values
-env by env; without them the step uses ``SimParams`` alone, as before.
-:func:`sample_env_params` draws them uniformly from ranges (``RANDOMIZED``) with a
-generator, so a seed reproduces them.
-
-What each does in the step:
-
-* limits: ``v`` in ``[v_min * v_max_e / v_max, v_max_e]``, ``|omega| <= omega_max_e``, and the
-  acceleration limits ``lin_acc_max_e``, ``ang_acc_max_e`` (``inf``: none);
-* delay: the twist applied is the command of ``delay_e`` steps ago (``SimState.cmd_queue``
-  holds the last commands; before the first command the robot is told to stand);
-* wheel noise: Gaussian noise of std ``wheel_noise_e`` (m/s) on each wheel's speed of the
-  applied twist; the robot really moves so (``vel``, the IMU and odometry see it);
-* lidar: the scan is taken with the sensor turned by ``angle_offset_e`` (rad); then
-  Gaussian noise of std ``range_noise_e`` is added, each ray drops out (reads
-  ``max_range_e``) with probability ``dropout_e``, and ranges are clamped to
-  ``[min_range, max_range_e]``; noise and dropout need the step's generator;
-* collision uses the robot radius ``robot_radius_e``.
-"""
+An :class:`EnvParams` holds, for every env, the quantities ``SimParams`` gives as one float
+(limits, actuator delay, wheel noise, the lidar's noise, dropout, offset and range, the robot's
+radius); passed to ``step(..., env_params=...)`` and ``init_state`` they replace ``SimParams``'
+values env by env. :func:`sample_env_params` draws them from ranges (``RANDOMIZED``) with a
+generator. What each one does in the step: docs/sim.md, "Domain randomisation"."""
 
 from __future__ import annotations
 
@@ -99,15 +81,15 @@ def max_delay(ranges: Mapping[str, tuple[float, float] | None]) -> int:
 
 
 def sample_env_params(ranges: Mapping[str, tuple[float, float] | None], params: SimParams, batch_size: int,
-                      gen: torch.Generator, like: Tensor) -> EnvParams:
+                      generator: torch.Generator, like: Tensor) -> EnvParams:
     """Per-env parameters drawn uniformly from ``ranges`` (name -> ``(min, max)``; missing or
     None: ``params``' value); ``delay`` uniformly among the whole steps of its range.
-    Every parameter draws from ``gen`` whether randomised or not, so switching one off
+    Every parameter draws from ``generator`` whether randomised or not, so switching one off
     leaves the others' draws unchanged."""
     check_ranges(ranges, params)
     out = nominal_env_params(params, batch_size, like).to_dict()
     for name in RANDOMIZED:
-        u = torch.rand(batch_size, generator=gen, dtype=like.dtype, device=gen.device).to(like.device)
+        u = torch.rand(batch_size, generator=generator, dtype=like.dtype, device=generator.device).to(like.device)
         r = ranges.get(name)
         if r is None:
             continue

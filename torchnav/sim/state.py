@@ -14,70 +14,42 @@ from tensordict import tensorclass
 from torch import Tensor
 
 
-
 @tensorclass
 class World:
-    """Per-env obstacles as padded tensors with validity masks.
+    """Per-env obstacles as padded tensors with validity masks: ``segments`` ``(B, S, 4)``, ``circles``
+    ``(B, C, 3)``, ``boxes`` ``(B, K, 5)`` and their bool masks; slots masked off are ignored. The row
+    layouts and units: docs/sim.md, "Worlds and obstacles"."""
 
-    Envs of one batch may hold different numbers of obstacles: slots whose mask
-    is False are ignored by collision and lidar. A kind may have zero slots.
-
-    Attributes:
-        segments: ``(B, S, 4)`` walls ``[x1, y1, x2, y2]`` in m.
-        segment_mask: ``(B, S)`` bool.
-        circles: ``(B, C, 3)`` ``[cx, cy, radius]`` in m.
-        circle_mask: ``(B, C)`` bool.
-        boxes: ``(B, K, 5)`` oriented boxes ``[cx, cy, half_x, half_y, yaw]`` (m, m, m, m, rad).
-        box_mask: ``(B, K)`` bool.
-    """
-
-    segments: Tensor
+    segments: Tensor  # (B, S, 4) walls [x1, y1, x2, y2], m
     segment_mask: Tensor
-    circles: Tensor
+    circles: Tensor  # (B, C, 3) [cx, cy, radius], m
     circle_mask: Tensor
-    boxes: Tensor
+    boxes: Tensor  # (B, K, 5) oriented boxes [cx, cy, half_x, half_y, yaw], m and rad
     box_mask: Tensor
 
 
 @tensorclass
 class SimState:
-    """Everything the simulator knows about ``B`` robots after a step.
+    """Everything the simulator knows about ``B`` robots after a step, all ``(B, ...)``; each field's
+    shape, meaning and unit is tabled in docs/sim.md, "State and units"."""
 
-    Attributes:
-        pose: ``(B, 3)`` true pose ``[x m, y m, theta rad]``.
-        vel: ``(B, 2)`` applied twist ``[v m/s, omega rad/s]`` (after limits).
-        odom: ``(B, 3)`` odometry pose estimate, integrated from noisy velocities.
-        ranges: ``(B, n_rays)`` lidar ranges in m of the current pose.
-        clearance: ``(B,)`` signed distance in m from the robot disc to the nearest obstacle
-            (negative when penetrating).
-        collided: ``(B,)`` bool, ``clearance <= 0``.
-        time: ``(B,)`` simulated time in s since the last reset.
-        imu: ``(B, 3)`` IMU reading ``[a_x m/s^2, a_y m/s^2, yaw rate rad/s]`` in the body
-            frame (``imu.py``); ``(B, 0)`` without an IMU (``SimParams.imu`` None).
-        imu_bias: ``(B, 3)`` the IMU's current bias (same units); ``(B, 0)`` without an IMU.
-        cam_depth: ``(B, n_cols)`` camera depth row in m (``camera.py``); ``(B, 0)`` without a camera.
-        movers: ``(B, M, 9)`` moving obstacles (``movers.py``); ``M`` may be 0.
-        mover_mask: ``(B, M)`` bool, which mover slots exist.
-        mover_plan: ``(B, M, 4 + 2P)`` waypoints of patrols and pedestrians (``movers.py``);
-            ``(B, M, 0)`` when every mover is ballistic.
-        cmd_queue: ``(B, K, 2)`` the last ``K`` commands, newest first, for an actuator
-            delay of up to ``K`` steps (``randomize.py``); ``(B, 0, 2)`` without delay.
-    """
-
-    pose: Tensor
-    vel: Tensor
-    odom: Tensor
-    ranges: Tensor
-    clearance: Tensor
-    collided: Tensor
-    time: Tensor
-    imu: Tensor
-    imu_bias: Tensor
-    cam_depth: Tensor
-    movers: Tensor
+    pose: Tensor  # (B, 3) true pose [x m, y m, theta rad]
+    vel: Tensor  # (B, 2) applied twist [v m/s, omega rad/s], after the limits
+    odom: Tensor  # (B, 3) odometry estimate, integrated from noisy velocities
+    ranges: Tensor  # (B, n_rays) lidar ranges at pose, m
+    clearance: Tensor  # (B,) signed gap robot disc - nearest obstacle, m (negative when penetrating)
+    collided: Tensor  # (B,) bool, clearance <= 0
+    time: Tensor  # (B,) s since the last reset
+    imu: Tensor  # (B, 3) [a_x m/s^2, a_y m/s^2, yaw rate rad/s] in the body frame; (B, 0) without an IMU
+    imu_bias: Tensor  # (B, 3) the IMU's bias (same units); (B, 0) without an IMU
+    cam_depth: Tensor  # (B, n_cols) camera depth row, m; (B, 0) without a camera
+    movers: Tensor  # (B, M, 9) moving obstacles (movers.py); M may be 0
     mover_mask: Tensor
-    mover_plan: Tensor
-    cmd_queue: Tensor
+    mover_plan: Tensor  # (B, M, 4 + 2P) patrol and pedestrian waypoints; (B, M, 0) if all are ballistic
+    cmd_queue: Tensor  # (B, K, 2) the last K commands, newest first, for actuator delay (randomize.py)
+
+
+_KIND_MASKS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
 
 
 def _as_rows(x, width: int, name: str, dtype, device) -> Tensor:
@@ -102,34 +74,17 @@ def make_world(
     ``segments`` is ``(S, 4)``, ``circles`` ``(C, 3)``, ``boxes`` ``(K, 5)``, in the
     layouts of :class:`World`. Padded slots can be added later by concatenation.
     """
-    parts = {
-        "segments": _as_rows(segments, 4, "segments", dtype, device),
-        "circles": _as_rows(circles, 3, "circles", dtype, device),
-        "boxes": _as_rows(boxes, 5, "boxes", dtype, device),
-    }
+    given = {"segments": segments, "circles": circles, "boxes": boxes}
+    parts = {key: _as_rows(given[key], width, key, dtype, device) for key, _, width in _KIND_MASKS}
     if parts["circles"].numel() and (parts["circles"][:, 2] < 0).any():
         raise ValueError("circles: radius must be >= 0")
     if parts["boxes"].numel() and (parts["boxes"][:, 2:4] < 0).any():
         raise ValueError("boxes: half extents must be >= 0")
     out = {}
-    for key, t in parts.items():
-        out[key] = t.unsqueeze(0).expand(batch_size, *t.shape).clone()
-        out[key.rstrip("s") + "_mask" if key != "boxes" else "box_mask"] = torch.ones(
-            batch_size, t.shape[0], dtype=torch.bool, device=device
-        )
-    return World(
-        segments=out["segments"],
-        segment_mask=out["segment_mask"],
-        circles=out["circles"],
-        circle_mask=out["circle_mask"],
-        boxes=out["boxes"],
-        box_mask=out["box_mask"],
-        batch_size=[batch_size],
-        device=device,
-    )
-
-
-_KIND_MASKS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
+    for key, mkey, _ in _KIND_MASKS:
+        out[key] = parts[key].unsqueeze(0).expand(batch_size, *parts[key].shape).clone()
+        out[mkey] = torch.ones(batch_size, parts[key].shape[0], dtype=torch.bool, device=device)
+    return World(**out, batch_size=[batch_size], device=device)
 
 
 def pad_world(world: World, segments: int | None = None, circles: int | None = None, boxes: int | None = None) -> World:
@@ -210,19 +165,12 @@ def planar_world(world: World) -> World:
 
 def check_world(world: World, batch_size: int, dtype: torch.dtype, device: torch.device) -> None:
     """Raise a ValueError naming the field whose shape, dtype or device is off."""
-    specs = {
-        "segments": 4,
-        "circles": 3,
-        "boxes": 5,
-    }
-    masks = {"segments": "segment_mask", "circles": "circle_mask", "boxes": "box_mask"}
-    for name, width in specs.items():
-        t = getattr(world, name)
-        m = getattr(world, masks[name])
+    for name, mask, width in _KIND_MASKS:
+        t, m = getattr(world, name), getattr(world, mask)
         if t.dim() != 3 or t.shape[0] != batch_size or t.shape[2] != width:
             raise ValueError(f"world.{name} must have shape ({batch_size}, N, {width}), got {tuple(t.shape)}")
         if m.shape != t.shape[:2] or m.dtype != torch.bool:
-            raise ValueError(f"world.{masks[name]} must be a bool tensor of shape {tuple(t.shape[:2])}, got {m.dtype} {tuple(m.shape)}")
+            raise ValueError(f"world.{mask} must be a bool tensor of shape {tuple(t.shape[:2])}, got {m.dtype} {tuple(m.shape)}")
         if t.dtype != dtype:
             raise ValueError(f"world.{name} has dtype {t.dtype}, expected {dtype} (the state's dtype)")
         if t.device != device:

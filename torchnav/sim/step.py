@@ -1,14 +1,7 @@
-"""The simulator step as a short chain of named, pure stages.
+"""The simulator step as a short chain of named, pure stages (docs/sim.md, "The step").
 
-``step(state, action, world, params) -> state`` changes nothing in place and
-never synchronises with the host, so it can be differentiated, compiled with
-``torch.compile`` and captured in CUDA graphs.
-
-    limits -> kinematics -> odometry -> imu -> movers -> collision -> lidar -> camera
-
-The IMU and the camera run only when ``SimParams.imu`` / ``SimParams.camera`` are
-set; the movers only when the state holds mover slots.
-"""
+``step(state, action, world, params) -> state`` changes nothing in place and never synchronises
+with the host, so it can be differentiated, compiled with ``torch.compile`` and captured in CUDA graphs."""
 
 from __future__ import annotations
 

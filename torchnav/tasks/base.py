@@ -1,10 +1,27 @@
-"""What every task shares: its frozen config, the batch size, device and dtype."""
+"""What every task shares: its frozen config, the batch size, device and dtype, and the state
+fields every episode carries (:class:`TaskState`)."""
 
 from __future__ import annotations
 
 from typing import Any, Callable
 
 import torch
+from tensordict import tensorclass
+from torch import Tensor
+
+from ..sim import SimState
+from .rewards import sum_terms
+
+
+@tensorclass
+class TaskState:
+    """The per-env state every task keeps, all ``(B, ...)``."""
+
+    sim: SimState  # the simulator state
+    steps: Tensor  # (B,) int64 steps this episode
+    history: Tensor  # (B, H, D) the last H observation frames, newest last
+    ep_return: Tensor  # (B,) running sum of the reward
+    ep_terms: Tensor  # (B, T) running sum of each weighted reward term
 
 
 class BatchedTask:
@@ -17,6 +34,27 @@ class BatchedTask:
         self.num_envs = num_envs
         self.device = torch.device(device)
         self.dtype = dtype
+
+    def _episode_start(self, sim: SimState, frame: Tensor) -> dict[str, Any]:
+        """The :class:`TaskState` fields of new episodes whose first observation frame is
+        ``frame`` ``(n, D)``: a history of ``H`` copies of it, no steps, zero sums."""
+        n = frame.shape[0]
+        return dict(
+            sim=sim, steps=torch.zeros(n, dtype=torch.int64, device=self.device),
+            history=frame[:, None, :].expand(n, self.cfg.observation.history, frame.shape[-1]).clone(),
+            ep_return=torch.zeros(n, dtype=self.dtype, device=self.device),
+            ep_terms=torch.zeros(n, len(self.term_names), dtype=self.dtype, device=self.device), batch_size=[n], device=self.device,
+        )
+
+    @staticmethod
+    def _episode_step(state: TaskState, sim: SimState, frame: Tensor, terms: dict[str, Tensor]) -> tuple[dict[str, Any], Tensor]:
+        """The :class:`TaskState` fields one step after ``state``, which saw ``frame`` ``(B, D)`` and
+        earned the weighted ``terms``, and the step's reward ``(B,)``."""
+        stacked, reward = sum_terms(terms, state.ep_terms)
+        return dict(
+            sim=sim, steps=state.steps + 1, history=torch.cat((state.history[:, 1:], frame[:, None]), dim=1),
+            ep_return=state.ep_return + reward, ep_terms=state.ep_terms + stacked, batch_size=state.batch_size, device=state.device,
+        ), reward
 
     @staticmethod
     def replace_where(state: Any, mask: torch.Tensor, fresh: Callable[[torch.Tensor], Any]) -> tuple[Any, int]:

@@ -20,42 +20,10 @@ from ..sim import SimState, init_state, make_world
 from ..sim import step as sim_step
 from ..sim.floor import band_coverage, floor_readings, nearest_distance, sensor_points
 from ..tracks import load_track, path_pose, project_on_path, wrap_delta
-from .base import BatchedTask
+from ..deprecation import renamed_keywords
+from .base import BatchedTask, TaskState
 from .line_config import LineConfig
-from .rewards import sum_terms, weighted
-
-
-@tensorclass
-class LineState:
-    """Per-env task state, all ``(B, ...)``.
-
-    Attributes:
-        sim: simulator state (pose, applied twist, forward range). s: ``(B,)`` m, arc length of
-            the robot's projection on the lap path. path_dist: ``(B,)`` m from the lap path.
-        progress: ``(B,)`` m of arc length gained this episode (negative when driven backwards).
-        laps: ``(B,)`` int64, most full laps reached this episode. lap_time: ``(B,)`` s at which
-            the first lap was completed (0 until then).
-        readings: ``(B, K)`` current sensor values in [0, 1]. history: ``(B, H, K)``, newest last.
-        steps, off_steps, stop_steps: ``(B,)`` int64: steps this episode, consecutive steps with no
-            sensor on the line, consecutive steps below the stop speed.
-        time_off_line: ``(B,)`` s with no sensor on the line this episode.
-        ep_return: ``(B,)``; ep_terms: ``(B, T)`` running sum of each weighted reward term.
-    """
-
-    sim: SimState
-    s: Tensor
-    path_dist: Tensor
-    progress: Tensor
-    laps: Tensor
-    lap_time: Tensor
-    readings: Tensor
-    history: Tensor
-    steps: Tensor
-    off_steps: Tensor
-    stop_steps: Tensor
-    time_off_line: Tensor
-    ep_return: Tensor
-    ep_terms: Tensor
+from .rewards import weighted
 
 
 class LineTask(BatchedTask):
@@ -97,11 +65,12 @@ class LineTask(BatchedTask):
         a = action.clamp(-1.0, 1.0)
         return (a + 1.0) * (0.5 * vmax) if self.cfg.action.forward_only else a * vmax
 
-    def sense(self, pose: Tensor, gen: torch.Generator | None) -> tuple[Tensor, Tensor]:
+    @renamed_keywords(gen="generator")
+    def sense(self, pose: Tensor, generator: torch.Generator | None) -> tuple[Tensor, Tensor]:
         """Sensor readings ``(B, K)`` (noisy with a generator) and the noise-free on-line flag ``(B,)``
         (some sensor's coverage above the threshold)."""
         d = nearest_distance(sensor_points(pose, self.sensor), self.tt.grid)
-        return floor_readings(d, self.half_width, self.sensor, gen), self._on_line(d)
+        return floor_readings(d, self.half_width, self.sensor, generator), self._on_line(d)
 
     def on_line(self, pose: Tensor) -> Tensor:
         """``(B,)`` bool: some sensor's noise-free coverage of the line is above the threshold."""
@@ -120,12 +89,13 @@ class LineTask(BatchedTask):
 
     # -- reset ----------------------------------------------------------------------------
 
-    def start_poses(self, n: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+    @renamed_keywords(gen="generator")
+    def start_poses(self, n: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
         """``n`` start poses ``(n, 3)`` and their arc lengths ``(n,)``: on the lap path, with the sensor
         array's centre over the line (heading along the chord to the point ``forward`` m ahead),
         plus uniform lateral and heading noise."""
         rc, L = self.cfg.reset, self.tt.length
-        u = torch.rand(n, 3, generator=gen, dtype=self.dtype, device=self.device) * 2 - 1
+        u = torch.rand(n, 3, generator=generator, dtype=self.dtype, device=self.device) * 2 - 1
         s = torch.full((n,), rc.start % L, dtype=self.dtype, device=self.device) if rc.start is not None else (u[:, 0] + 1) * (0.5 * L)
         here = path_pose(self.tt.lap, self.tt.lap_s, s)
         ahead = path_pose(self.tt.lap, self.tt.lap_s, s + self.sensor.forward)
@@ -136,32 +106,32 @@ class LineTask(BatchedTask):
         th = th + u[:, 2] * rc.heading_noise
         return torch.stack((x, y, torch.atan2(torch.sin(th), torch.cos(th))), dim=-1), s
 
-    def _fresh(self, n: int, gen: torch.Generator) -> LineState:
-        pose, s0 = self.start_poses(n, gen)
+    def _fresh(self, n: int, generator: torch.Generator) -> LineState:
+        pose, s0 = self.start_poses(n, generator)
         sim = init_state(pose, self.world[:n], self.params)
         s, dist = project_on_path(pose[:, :2], self.tt.lap, self.tt.lap_s, s0, self.window)
-        readings, _ = self.sense(pose, gen)
+        readings, _ = self.sense(pose, generator)
         zf = torch.zeros(n, dtype=self.dtype, device=self.device)
         zi = torch.zeros(n, dtype=torch.int64, device=self.device)
         return LineState(
-            sim=sim, s=s, path_dist=dist, progress=zf, laps=zi, lap_time=zf.clone(), readings=readings,
-            history=readings[:, None, :].expand(n, self.cfg.observation.history, self.n_sensors).clone(),
-            steps=zi.clone(), off_steps=zi.clone(), stop_steps=zi.clone(), time_off_line=zf.clone(), ep_return=zf.clone(),
-            ep_terms=torch.zeros(n, len(self.term_names), dtype=self.dtype, device=self.device),
-            batch_size=[n], device=self.device,
+            s=s, path_dist=dist, progress=zf, laps=zi, lap_time=zf.clone(), readings=readings, off_steps=zi.clone(),
+            stop_steps=zi.clone(), time_off_line=zf.clone(), **self._episode_start(sim, readings),
         )
 
-    def initial_state(self, gen: torch.Generator) -> LineState:
+    @renamed_keywords(gen="generator")
+    def initial_state(self, generator: torch.Generator) -> LineState:
         """Fresh episodes in every env."""
-        return self._fresh(self.num_envs, gen)
+        return self._fresh(self.num_envs, generator)
 
-    def reset(self, state: LineState, mask: Tensor, gen: torch.Generator) -> LineState:
+    @renamed_keywords(gen="generator")
+    def reset(self, state: LineState, mask: Tensor, generator: torch.Generator) -> LineState:
         """New episodes where ``mask`` ``(B,)`` is True; the other envs are left bit-identical (``replace_where``)."""
-        return self.replace_where(state, mask, lambda idx: self._fresh(idx.numel(), gen))[0]
+        return self.replace_where(state, mask, lambda idx: self._fresh(idx.numel(), generator))[0]
 
     # -- step -------------------------------------------------------------------------------
 
-    def step(self, state: LineState, action: Tensor, gen: torch.Generator | None = None) -> tuple[LineState, dict]:
+    @renamed_keywords(gen="generator")
+    def step(self, state: LineState, action: Tensor, generator: torch.Generator | None = None) -> tuple[LineState, dict]:
         """Advance every env one step. Pure: ``state`` is not modified.
 
         Returns the new state and ``out`` with ``observation`` ``(B, obs_size)``, ``reward`` ``(B,)``,
@@ -169,8 +139,8 @@ class LineTask(BatchedTask):
         ``left_line``, ``stalled``, ``collision``, ``lap_completed`` ``(B,)`` bool.
         """
         c, dt = self.cfg, self.cfg.robot.dt
-        sim = sim_step(state.sim, self.command(action), self.world, self.params, wheel_speeds=True, generator=gen)
-        readings, on_line = self.sense(sim.pose, gen)
+        sim = sim_step(state.sim, self.command(action), self.world, self.params, wheel_speeds=True, generator=generator)
+        readings, on_line = self.sense(sim.pose, generator)
         s, dist = project_on_path(sim.pose[:, :2], self.tt.lap, self.tt.lap_s, state.s, self.window)
         ds = wrap_delta(s - state.s, self.tt.length)
         progress = state.progress + ds
@@ -189,19 +159,31 @@ class LineTask(BatchedTask):
             "progress": lambda: ds, "off_line": lambda: off, "failure": lambda: terminated.to(self.dtype),
             "lap": lambda: lap_completed.to(self.dtype), "turning": lambda: sim.vel[:, 1].abs(), "step": lambda: torch.ones_like(ds),
         })
-        stacked, reward = sum_terms(terms, state.ep_terms)
-        history = torch.cat((state.history[:, 1:], readings[:, None]), dim=1)
+        common, reward = self._episode_step(state, sim, readings, terms)
         first_lap = lap_completed & (state.laps == 0)
         new = LineState(
-            sim=sim, s=s, path_dist=dist, progress=progress, laps=laps,
-            lap_time=torch.where(first_lap, steps.to(self.dtype) * dt, state.lap_time),
-            readings=readings, history=history, steps=steps, off_steps=off_steps, stop_steps=stop_steps,
-            time_off_line=state.time_off_line + off * dt, ep_return=state.ep_return + reward,
-            ep_terms=state.ep_terms + stacked, batch_size=state.batch_size, device=state.device,
+            s=s, path_dist=dist, progress=progress, laps=laps, lap_time=torch.where(first_lap, steps.to(self.dtype) * dt, state.lap_time),
+            readings=readings, off_steps=off_steps, stop_steps=stop_steps, time_off_line=state.time_off_line + off * dt, **common,
         )
         out = {
-            "observation": self.observe(history, sim), "reward": reward, "terms": terms, "terminated": terminated,
+            "observation": self.observe(common["history"], sim), "reward": reward, "terms": terms, "terminated": terminated,
             "truncated": truncated, "on_line": on_line, "left_line": left_line, "stalled": stalled,
             "collision": collision, "lap_completed": lap_completed,
         }
         return new, out
+
+
+@tensorclass
+class LineState(TaskState):
+    """Per-env line-following state, all ``(B, ...)``: :class:`~torchnav.tasks.base.TaskState`
+    (``history`` ``(B, H, K)`` of sensor readings) and the robot's place on the lap."""
+
+    s: Tensor  # (B,) m, arc length of the robot's projection on the lap path
+    path_dist: Tensor  # (B,) m from the lap path
+    progress: Tensor  # (B,) m of arc length gained this episode (negative when driven backwards)
+    laps: Tensor  # (B,) int64, most full laps reached this episode
+    lap_time: Tensor  # (B,) s at which the first lap was completed (0 until then)
+    readings: Tensor  # (B, K) current sensor values in [0, 1]
+    off_steps: Tensor  # (B,) int64 consecutive steps with no sensor on the line
+    stop_steps: Tensor  # (B,) int64 consecutive steps below the stop speed
+    time_off_line: Tensor  # (B,) s with no sensor on the line this episode

@@ -19,48 +19,18 @@ from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pa
 from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
 from ..sim import step as sim_step
-from .base import BatchedTask
+from ..deprecation import renamed_attribute, renamed_keywords
+from .base import BatchedTask, TaskState
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
-from .rewards import resolve_weights, reward_terms, sum_terms
+from .rewards import resolve_weights, reward_terms
 from .sampling import MoverSource, place_movers, place_random_objects, sample_goals, sample_starts
-
-
-@tensorclass
-class NavState:
-    """Per-env task state, all ``(B, ...)``.
-
-    Attributes:
-        sim: simulator state. world: obstacles of this episode. goal: ``(B, 2)`` m.
-        start: ``(B, 3)`` start pose. steps: ``(B,)`` int64 steps this episode.
-        goal_dist: ``(B,)`` m, distance to the goal after the last step.
-        ep_return, ep_path, straight: ``(B,)`` running return, path length (m) and
-            start-goal distance (m). ep_terms: ``(B, T)`` running sum of each reward term.
-        history: ``(B, H, D)`` the last H observations, newest last.
-        family: ``(B,)`` int64 index of the episode's world family in ``cfg.worlds.families``
-            (0 without procedural worlds). difficulty: ``(B,)`` its difficulty in [0, 1].
-        env_params: the episode's per-env robot and sensor parameters (``cfg.randomize``;
-            the fixed values of ``cfg`` when nothing is randomised).
-    """
-
-    sim: SimState
-    world: World
-    goal: Tensor
-    start: Tensor
-    steps: Tensor
-    goal_dist: Tensor
-    ep_return: Tensor
-    ep_path: Tensor
-    straight: Tensor
-    ep_terms: Tensor
-    history: Tensor
-    family: Tensor
-    difficulty: Tensor
-    env_params: EnvParams
 
 
 class NavTask(BatchedTask):
     """Configured navigation task for ``num_envs`` envs on ``device``."""
+
+    obs_dim = renamed_attribute("obs_dim", "frame_size")
 
     def __init__(self, cfg: NavConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
         super().__init__(cfg, num_envs, device, dtype)
@@ -82,8 +52,8 @@ class NavTask(BatchedTask):
         self.n_sectors = cfg.lidar.n_sectors
         self.n_imu = 3 if cfg.observation.imu else 0
         self.n_depth = cfg.camera.n_cols if cfg.observation.camera else 0
-        self.obs_dim = self.n_sectors + 4 + self.n_imu + self.n_depth
-        self.obs_size = self.obs_dim * cfg.observation.history
+        self.frame_size = self.n_sectors + 4 + self.n_imu + self.n_depth
+        self.obs_size = self.frame_size * cfg.observation.history
         if self.families:
             self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
             self.slots = slot_counts(self.families)  # every episode's world is padded to these
@@ -122,7 +92,7 @@ class NavTask(BatchedTask):
     def _make_obs_scale(self) -> Tensor:
         li, r = self.cfg.lidar, self.cfg.robot
         if not self.cfg.observation.normalize:
-            return torch.ones(self.obs_dim, dtype=self.dtype, device=self.device)
+            return torch.ones(self.frame_size, dtype=self.dtype, device=self.device)
         s = [1.0 / li.max_range] * self.n_sectors + [1.0 / li.max_range, 1.0 / math.pi, 1.0 / r.v_max, 1.0 / max(r.omega_max, 1e-9)]
         # IMU: accelerations by the largest centripetal one (v_max * omega_max), yaw rate by omega_max.
         s += [1.0 / max(r.v_max * r.omega_max, 1e-9)] * 2 + [1.0 / max(r.omega_max, 1e-9)] if self.n_imu else []
@@ -153,18 +123,18 @@ class NavTask(BatchedTask):
 
     # -- reset ----------------------------------------------------------------------
 
-    def _fresh(self, idx: Tensor, cur: CurriculumState, gen: torch.Generator) -> NavState:
+    def _fresh(self, idx: Tensor, cur: CurriculumState, generator: torch.Generator) -> NavState:
         """New episodes for envs ``idx`` ``(n,)``."""
         c, rc = self.cfg, self.cfg.reset
         n = idx.shape[0]
         if self.families:
-            world, start, goal, family, difficulty, bounds = self._generated(n, cur, gen)
+            world, start, goal, family, difficulty, bounds = self._generated(n, cur, generator)
         else:
             world = self.base_world[idx]
-            start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, gen)
-            goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, gen)
+            start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator)
+            goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, generator)
             world = place_random_objects(
-                world, self.spec, start[:, :2], goal, rc.candidates, gen,
+                world, self.spec, start[:, :2], goal, rc.candidates, generator,
                 start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance,
             )
             family = torch.zeros(n, dtype=torch.int64, device=self.device)
@@ -173,42 +143,39 @@ class NavTask(BatchedTask):
         if self.n_movers:
             # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
             where = self.spec if not self.families else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
-            movers = place_movers(world, where, start[:, :2], goal, rc.candidates, gen,
+            movers = place_movers(world, where, start[:, :2], goal, rc.candidates, generator,
                                   start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
         if self.randomized:
-            env_params = sample_env_params(self.randomized, self.params, n, gen, start)
+            env_params = sample_env_params(self.randomized, self.params, n, generator, start)
         else:
             env_params = nominal_env_params(self.params, n, start)
         sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
                          delay_steps=self.delay_steps)
         obs = self.observe(sim, goal)
         dist, _ = self.goal_vector(sim.pose, goal)
-        zeros = torch.zeros(n, dtype=self.dtype, device=self.device)
         return NavState(
-            sim=sim, world=world, goal=goal, start=start,
-            steps=torch.zeros(n, dtype=torch.int64, device=self.device),
-            goal_dist=dist, ep_return=zeros, ep_path=zeros.clone(), straight=dist.detach().clone(),
-            ep_terms=torch.zeros(n, len(self.term_names), dtype=self.dtype, device=self.device),
-            history=obs[:, None, :].expand(n, self.cfg.observation.history, self.obs_dim).clone(),
-            family=family, difficulty=difficulty, env_params=env_params, batch_size=[n], device=self.device,
+            world=world, goal=goal, start=start, goal_dist=dist, ep_path=torch.zeros(n, dtype=self.dtype, device=self.device),
+            straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params, **self._episode_start(sim, obs),
         )
 
-    def _generated(self, n: int, cur: CurriculumState, gen: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor]:
+    def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor]:
         """``n`` procedural episodes: padded worlds, starts ``(n, 3)``, goals ``(n, 2)``, family
         indices ``(n,)``, difficulties ``(n,)`` and bounds ``(n, 4)``, each family at its curriculum difficulty."""
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
-        batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, gen, self.device, self.dtype, self.cfg.robot.radius,
-                           self.cfg.worlds.anywhere_goals, self.cfg.worlds.below_level)
+        batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, generator, self.device, self.dtype, robot_radius=self.cfg.robot.radius,
+                           anywhere_goals=self.cfg.worlds.anywhere_goals, below_level=self.cfg.worlds.below_level)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
         return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty, batch.bounds
 
-    def initial_state(self, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
+    @renamed_keywords(gen="generator")
+    def initial_state(self, cur: CurriculumState, generator: torch.Generator) -> tuple[NavState, CurriculumState]:
         """Fresh episodes in every env."""
         idx = torch.arange(self.num_envs, device=self.device)
         self._pool = None
-        return self._fresh(idx, cur, gen), after_placements(cur, self.cfg.curriculum, torch.tensor(self.num_envs, device=self.device))
+        return self._fresh(idx, cur, generator), after_placements(cur, self.cfg.curriculum, torch.tensor(self.num_envs, device=self.device))
 
-    def reset(self, state: NavState, mask: Tensor, cur: CurriculumState, gen: torch.Generator) -> tuple[NavState, CurriculumState]:
+    @renamed_keywords(gen="generator")
+    def reset(self, state: NavState, mask: Tensor, cur: CurriculumState, generator: torch.Generator) -> tuple[NavState, CurriculumState]:
         """New episodes for the envs where ``mask`` ``(B,)`` is True; the others are left bit-identical.
 
         Only they are sampled (``replace_where``; or, with ``cfg.reset.pool > 0``, taken from a
@@ -216,29 +183,19 @@ class NavTask(BatchedTask):
         the curriculum.
         """
         pooled = self.cfg.reset.pool > 0 or self.families  # generating worlds costs the same for 1 env or 1,000
-        state, n = self.replace_where(state, mask, lambda idx: self._from_pool(idx.numel(), cur, gen) if pooled else self._fresh(idx, cur, gen))
+        state, n = self.replace_where(state, mask, lambda idx: self._from_pool(idx.numel(), cur, generator) if pooled else self._fresh(idx, cur, generator))
         return state, (after_placements(cur, self.cfg.curriculum, torch.tensor(n, device=self.device)) if n else cur)
 
-    def _from_pool(self, n: int, cur: CurriculumState, gen: torch.Generator) -> NavState:
-        """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short.
-
-        Every env of a task shares the map's fixed world (or, with procedural worlds,
-        every episode carries its own world padded to the same slots), so episodes
-        sampled for any env fit every env. Sampling many at once costs about as much
-        as sampling a few (the samplers are bound by per-operation overhead), so with
-        a pool a reset costs an index copy most of the time. Goals and difficulties
-        come from the curriculum at the time the pool was filled. With procedural
-        worlds a pool is always used (``reset.pool`` 0 means ``num_envs`` episodes).
-        With ``reset.reuse = k`` the pool is handed out ``k`` times, each pass in a
-        fresh order, before it is refilled (generating a world costs milliseconds).
-        """
+    def _from_pool(self, n: int, cur: CurriculumState, generator: torch.Generator) -> NavState:
+        """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short; each pooled
+        episode fits any env. Why, and ``reset.reuse``: docs/tasks.md, "Episode pool"."""
         size = 0 if self._pool is None else self._pool.batch_size[0]
         if self._pool is not None and self._pool_pos + n > size and self._pool_passes < self.cfg.reset.reuse:
-            self._pool = self._pool[torch.randperm(size, generator=gen, device=gen.device).to(self.device)]
+            self._pool = self._pool[torch.randperm(size, generator=generator, device=generator.device).to(self.device)]
             self._pool_pos, self._pool_passes = 0, self._pool_passes + 1
         if self._pool is None or self._pool_pos + n > size:
             size = max(self.cfg.reset.pool or self.num_envs, n)
-            self._pool = self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, gen)
+            self._pool = self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, generator)
             self._pool_pos, self._pool_passes = 0, 1
         out = self._pool[self._pool_pos : self._pool_pos + n]
         self._pool_pos += n
@@ -246,14 +203,15 @@ class NavTask(BatchedTask):
 
     # -- step -------------------------------------------------------------------------
 
-    def step(self, state: NavState, action: Tensor, gen: torch.Generator | None = None) -> tuple[NavState, dict[str, Tensor]]:
+    @renamed_keywords(gen="generator")
+    def step(self, state: NavState, action: Tensor, generator: torch.Generator | None = None) -> tuple[NavState, dict[str, Tensor]]:
         """Advance every env one step. Pure: ``state`` is not modified.
 
         Returns the new state and ``out`` with ``observation`` ``(B, H*D)``, ``reward`` ``(B,)``,
         ``terms`` (dict of ``(B,)`` weighted reward terms), ``terminated``, ``truncated``,
         ``success``, ``collision`` ``(B,)`` bool.
         """
-        sim = self._sim_step(state.sim, self.command(action), state.world, self.params, generator=gen,
+        sim = self._sim_step(state.sim, self.command(action), state.world, self.params, generator=generator,
                              env_params=state.env_params if self.randomized else None)
         dist, bearing = self.goal_vector(sim.pose, state.goal)
         collision = sim.collided
@@ -262,22 +220,33 @@ class NavTask(BatchedTask):
             self.weights, self.cfg.reward, success=success, collision=collision, vel=sim.vel,
             d_min=sim.ranges.amin(-1), progress=state.goal_dist - dist, bearing=bearing,
         )
-        stacked, reward = sum_terms(terms, state.ep_terms)
-        steps = state.steps + 1
+        common, reward = self._episode_step(state, sim, self.observe(sim, state.goal), terms)
         terminated = success | collision
-        truncated = (steps >= self.cfg.max_steps) & ~terminated
-        obs = self.observe(sim, state.goal)
-        history = torch.cat((state.history[:, 1:], obs[:, None]), dim=1)
+        truncated = (common["steps"] >= self.cfg.max_steps) & ~terminated
         new = NavState(
-            sim=sim, world=state.world, goal=state.goal, start=state.start, steps=steps, goal_dist=dist,
-            ep_return=state.ep_return + reward,
+            world=state.world, goal=state.goal, start=state.start, goal_dist=dist,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
-            straight=state.straight, ep_terms=state.ep_terms + stacked, history=history,
-            family=state.family, difficulty=state.difficulty, env_params=state.env_params,
-            batch_size=state.batch_size, device=state.device,
+            straight=state.straight, family=state.family, difficulty=state.difficulty, env_params=state.env_params, **common,
         )
+        history = common["history"]
         out = {
             "observation": history.reshape(history.shape[0], -1), "reward": reward, "terms": terms,
             "terminated": terminated, "truncated": truncated, "success": success, "collision": collision,
         }
         return new, out
+
+
+@tensorclass
+class NavState(TaskState):
+    """Per-env navigation state, all ``(B, ...)``: :class:`~torchnav.tasks.base.TaskState`
+    (``history`` ``(B, H, D)`` of observation frames) and the episode's world and goal."""
+
+    world: World  # obstacles of this episode
+    goal: Tensor  # (B, 2) m
+    start: Tensor  # (B, 3) start pose
+    goal_dist: Tensor  # (B,) m to the goal after the last step
+    ep_path: Tensor  # (B,) m driven this episode
+    straight: Tensor  # (B,) m start-goal distance
+    family: Tensor  # (B,) int64 index of the episode's world family in cfg.worlds.families (0 without)
+    difficulty: Tensor  # (B,) that family's difficulty in [0, 1]
+    env_params: EnvParams  # per-env robot and sensor parameters (cfg.randomize; cfg's values when none)

@@ -1,20 +1,7 @@
-"""Reward terms and presets. Each term is computed raw, weighted, and reported on its own.
+"""Reward terms and presets: each term is computed raw, weighted, and reported on its own.
 
-Raw terms (per env, per step):
-
-============  ==============================================================
-``goal``      1 on the step the goal is reached, else 0
-``collision`` 1 on the step the robot collides, else 0
-``velocity``  forward speed v in m/s (0 on terminal steps)
-``turning``   |omega| in rad/s (0 on terminal steps)
-``proximity`` ``max(0, proximity_distance - d_min)`` with d_min the nearest lidar
-              return in m (0 on terminal steps); the classic ``r3 = 1 - d_min``
-``progress``  decrease of the distance to the goal in this step, m
-``spin``      ``max(0, |omega| - spin_threshold)`` in rad/s (0 on terminal steps)
-``step``      1 every step
-``heading``   cosine of the goal bearing in the robot frame (0 on terminal steps)
-============  ==============================================================
-"""
+The raw terms of navigation (``TERMS``) and the presets are tabled in docs/tasks.md;
+:func:`weighted` and :func:`sum_terms` are the mechanism both tasks use."""
 
 from __future__ import annotations
 

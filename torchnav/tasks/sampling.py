@@ -22,6 +22,7 @@ from ..maps import MapSpec
 from ..maps.spec import MovingCircles, RandomCircles
 from ..sim import World, pad_world, points_clearance
 from ..sim.movers import PATROL, PEDESTRIAN, Movers
+from ..worlds.layout import uniform
 
 _BIG = 1e9
 # Most elements of one (n, candidates, obstacles) distance temporary: 4 MB in float32, and the
@@ -29,10 +30,6 @@ _BIG = 1e9
 # were faster on CPU (a full reset of 1024 envs on a 400-circle map, one thread: about 1 s at 2**20,
 # 2 s at 2**22, 5 s and a 2.3 GB peak unchunked), while each chunk still fills a GPU kernel.
 _CHUNK_ELEMENTS = 1 << 20
-
-
-def _uniform(shape, lo, hi, gen: torch.Generator, like: Tensor) -> Tensor:
-    return lo + (hi - lo) * torch.rand(shape, generator=gen, dtype=like.dtype, device=like.device)
 
 
 def _clearance(points: Tensor, world: World) -> Tensor:
@@ -64,7 +61,7 @@ def _inside(xy: Tensor, bounds, margin) -> Tensor:
     return (x >= xmin + margin) & (x <= xmax - margin) & (y >= ymin + margin) & (y <= ymax - margin)
 
 
-def sample_starts(world: World, spec: MapSpec, need: float, k: int, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
     """Start poses ``(n, 3)`` whose position is at least ``need`` m from every obstacle of ``world``
     and from the world's edge, with a uniform random heading.
 
@@ -75,15 +72,15 @@ def sample_starts(world: World, spec: MapSpec, need: float, k: int, gen: torch.G
     like = world.segments
     xmin, ymin, xmax, ymax = spec.bounds
     m = min(need, 0.49 * min(xmax - xmin, ymax - ymin))
-    xy = torch.stack((_uniform((n, k), xmin + m, xmax - m, gen, like), _uniform((n, k), ymin + m, ymax - m, gen, like)), -1)
+    xy = torch.stack((uniform(xmin + m, xmax - m, (n, k), generator, like), uniform(ymin + m, ymax - m, (n, k), generator, like)), -1)
     clear = _clearance(xy, world)
     idx, found = _pick(clear >= need, clear)
-    heading = _uniform((n,), -math.pi, math.pi, gen, like)
+    heading = uniform(-math.pi, math.pi, (n,), generator, like)
     return torch.cat((_gather(xy, idx), heading[:, None]), dim=-1), found
 
 
 def sample_goals(
-    world: World, spec: MapSpec, start_xy: Tensor, r_min: float, r_max: Tensor, need: float, k: int, gen: torch.Generator
+    world: World, spec: MapSpec, start_xy: Tensor, r_min: float, r_max: Tensor, need: float, k: int, generator: torch.Generator
 ) -> tuple[Tensor, Tensor]:
     """Goals ``(n, 2)`` at a distance in ``[r_min, r_max]`` from ``start_xy`` ``(n, 2)``, inside the
     world and at least ``need`` m from every obstacle.
@@ -95,11 +92,11 @@ def sample_goals(
     n = start_xy.shape[0]
     like = start_xy
     hi = torch.maximum(r_max.to(like), torch.as_tensor(r_min, dtype=like.dtype, device=like.device))
-    dist = r_min + (hi - r_min) * torch.rand((n, k), generator=gen, dtype=like.dtype, device=like.device)
-    ang = _uniform((n, k), -math.pi, math.pi, gen, like)
+    dist = uniform(r_min, hi, (n, k), generator, like)
+    ang = uniform(-math.pi, math.pi, (n, k), generator, like)
     near = start_xy[:, None, :] + torch.stack((dist * torch.cos(ang), dist * torch.sin(ang)), -1)
     xmin, ymin, xmax, ymax = spec.bounds
-    anywhere = torch.stack((_uniform((n, k), xmin, xmax, gen, like), _uniform((n, k), ymin, ymax, gen, like)), -1)
+    anywhere = torch.stack((uniform(xmin, xmax, (n, k), generator, like), uniform(ymin, ymax, (n, k), generator, like)), -1)
     cand = torch.cat((near, anywhere), dim=1)  # (n, 2k): near candidates first
     clear = _clearance(cand, world)
     sep = (cand - start_xy[:, None, :]).norm(dim=-1)
@@ -113,7 +110,7 @@ def sample_goals(
 
 
 def place_random_objects(
-    world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator,
+    world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> World:
     """Fill the random box and circle slots of ``world`` (batch ``n``) with fresh objects.
@@ -142,15 +139,15 @@ def place_random_objects(
     xmin, ymin, xmax, ymax = spec.bounds
     m = nb + nc
     # All candidates of all objects at once: (n, m, k).
-    xy = torch.stack((_uniform((n, m, k), xmin, xmax, gen, like), _uniform((n, m, k), ymin, ymax, gen, like)), -1)
+    xy = torch.stack((uniform(xmin, xmax, (n, m, k), generator, like), uniform(ymin, ymax, (n, m, k), generator, like)), -1)
     parts_r = []
     if nb:
-        hx = _uniform((n, nb, k), rb.size_x[0] / 2, rb.size_x[1] / 2, gen, like)
-        hy = _uniform((n, nb, k), rb.size_y[0] / 2, rb.size_y[1] / 2, gen, like)
-        yaw = _uniform((n, nb, k), rb.yaw[0], rb.yaw[1], gen, like)
+        hx = uniform(rb.size_x[0] / 2, rb.size_x[1] / 2, (n, nb, k), generator, like)
+        hy = uniform(rb.size_y[0] / 2, rb.size_y[1] / 2, (n, nb, k), generator, like)
+        yaw = uniform(rb.yaw[0], rb.yaw[1], (n, nb, k), generator, like)
         parts_r.append(torch.hypot(hx, hy))
     if nc:
-        rad = _uniform((n, nc, k), rcirc.radius[0], rcirc.radius[1], gen, like)
+        rad = uniform(rcirc.radius[0], rcirc.radius[1], (n, nc, k), generator, like)
         parts_r.append(rad)
     rc = torch.cat(parts_r, 1)  # circumscribed radius (n, m, k)
     per_obj = ([(rb.clearance, rb.margin)] * nb if nb else []) + ([(rcirc.clearance, rcirc.margin)] * nc if nc else [])
@@ -216,7 +213,7 @@ class MoverSource:
 
 
 def place_movers(
-    world: World, spec: MapSpec | MoverSource, start_xy: Tensor, goal_xy: Tensor, k: int, gen: torch.Generator,
+    world: World, spec: MapSpec | MoverSource, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> Movers:
     """The map's ``moving_circles`` for a batch ``n`` of episodes (``movers (n, M, 9)``, ``mask (n, M)``, ``plan``).
@@ -233,19 +230,19 @@ def place_movers(
     region = mc.region or spec.bounds
     shim = _MoverPlacement(world.boxes.shape[1], world.circles.shape[1], region,
                            RandomCircles(count=mc.count, radius=mc.radius, clearance=mc.clearance, margin=mc.margin))
-    placed = place_random_objects(pad_world(world, circles=world.circles.shape[1] + mc.count), shim, start_xy, goal_xy, k, gen,
+    placed = place_random_objects(pad_world(world, circles=world.circles.shape[1] + mc.count), shim, start_xy, goal_xy, k, generator,
                                   start_need=start_need, goal_need=goal_need)
     disc, mask = placed.circles[:, -mc.count:], placed.circle_mask[:, -mc.count:]
-    heading = _uniform((n, mc.count), -math.pi, math.pi, gen, like)
-    speed = _uniform((n, mc.count), mc.speed[0], mc.speed[1], gen, like)
+    heading = uniform(-math.pi, math.pi, (n, mc.count), generator, like)
+    speed = uniform(mc.speed[0], mc.speed[1], (n, mc.count), generator, like)
     box = (-math.inf, -math.inf, math.inf, math.inf) if mc.motion == "constant" else region
     box = torch.stack([torch.as_tensor(e, dtype=like.dtype, device=like.device).reshape(-1, 1).expand(n, mc.count) for e in box], -1)
     rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3], box), -1)
     plan = like.new_zeros(n, mc.count, 0)
     if mc.motion in ("patrol", "pedestrian"):
         p, r = mc.waypoints, disc[..., 2:3]
-        wx = region[0] + r + (region[2] - region[0] - 2 * r) * torch.rand((n, mc.count, p), generator=gen, dtype=like.dtype, device=like.device)
-        wy = region[1] + r + (region[3] - region[1] - 2 * r) * torch.rand((n, mc.count, p), generator=gen, dtype=like.dtype, device=like.device)
+        wx = region[0] + r + (region[2] - region[0] - 2 * r) * torch.rand((n, mc.count, p), generator=generator, dtype=like.dtype, device=like.device)
+        wy = region[1] + r + (region[3] - region[1] - 2 * r) * torch.rand((n, mc.count, p), generator=generator, dtype=like.dtype, device=like.device)
         kind = PEDESTRIAN if mc.motion == "pedestrian" else PATROL
         head = torch.stack((torch.full_like(speed, kind), speed, torch.zeros_like(speed), torch.full_like(speed, p)), -1)
         plan = torch.cat((head, torch.stack((wx, wy), -1).flatten(-2)), -1)

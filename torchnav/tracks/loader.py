@@ -1,16 +1,8 @@
-"""Track files (YAML, optionally pointing at a PNG mask) -> :class:`~torchnav.tracks.track.Track`.
+"""Track files (YAML ``lines:`` polylines, or an ``image:`` PNG mask) -> :class:`~torchnav.tracks.track.Track`.
 
-The schema is documented key by key in ``docs/line.md``. Parsing is strict, like
-map files: an unknown key, a wrong type or an impossible corner radius raises
-:class:`TrackError` naming the file and the key path (``course.yaml: lines[1].corner_radius: ...``).
-
-Two kinds of file:
-
-* ``lines:`` polylines in metres, each optionally closed, with filleted corners
-  (``corner_radius``) or a Catmull-Rom spline (``smooth: true``);
-* ``image:`` a PNG mask (white line on black floor by default) with ``resolution``
-  in m per pixel; see :mod:`torchnav.tracks.png`.
-"""
+The schema is documented key by key in docs/line.md. Parsing is strict, like map files: an
+unknown key, a wrong type or an impossible corner radius raises :class:`TrackError` naming the
+file and the key path (``course.yaml: lines[1].corner_radius: ...``)."""
 
 from __future__ import annotations
 

@@ -1,16 +1,9 @@
-"""Tracks from PNG masks: threshold, thin to a one-pixel centreline, connect neighbours.
+"""Tracks from PNG masks: threshold, thin to a one-pixel centreline (Zhang-Suen), connect neighbours.
 
-The mask's line pixels (white on black unless ``invert``) are thinned with the
-Zhang-Suen algorithm; every pair of 8-connected centreline pixels becomes a
-segment (diagonal pairs only where no orthogonal path joins them), so crossings
-and branches need no special handling. The line width is the mask's line area
-divided by the centreline length unless the file gives ``width``.
-
-The lap path is the file's ``lap`` (points like a line entry, always closed) or,
-when the centreline is a single loop, the loop traced pixel by pixel, smoothed
-over 5 pixels and oriented counter-clockwise. A mask with crossings or branches
-needs an explicit ``lap``.
-"""
+Every pair of 8-connected centreline pixels becomes a segment (diagonal pairs only where no
+orthogonal path joins them), so crossings need no special handling. The width is the line area
+over the centreline length unless given; the lap is the file's ``lap`` or, for a single loop,
+the loop traced, smoothed over 5 pixels and oriented counter-clockwise (docs/line.md)."""
 
 from __future__ import annotations
 

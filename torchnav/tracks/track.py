@@ -22,29 +22,17 @@ class TrackError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class Track:
-    """One track (the same for every env of a batch).
+    """One track (the same for every env of a batch); arrays in m."""
 
-    Attributes:
-        name: track name (file stem for files).
-        width: m, width of the line (tape).
-        segments: ``(S, 4)`` centreline segments ``[x1, y1, x2, y2]`` of every line, m.
-        lines: resampled polylines ``(N_i, 2)`` for drawing (a closed one repeats its first point).
-        lap: ``(P, 2)`` vertices of the closed lap path, first vertex repeated at the end; its
-            direction is the driving direction, and ``lap[0]`` is the start line.
-        walls: ``(W, 4)`` wall segments (m) seen by the forward distance sensor; often empty.
-        spacing: m, resampling step of lines and lap path.
-        source: file the track came from. description: free text from the file.
-    """
-
-    name: str
-    width: float
-    segments: np.ndarray
-    lines: tuple[np.ndarray, ...]
-    lap: np.ndarray
-    walls: np.ndarray
-    spacing: float
-    source: str = "<dict>"
-    description: str = ""
+    name: str  # track name (file stem for files)
+    width: float  # m, width of the line (tape)
+    segments: np.ndarray  # (S, 4) centreline segments [x1, y1, x2, y2] of every line
+    lines: tuple[np.ndarray, ...]  # resampled polylines (N_i, 2) for drawing (a closed one repeats its first point)
+    lap: np.ndarray  # (P, 2) closed lap path, first vertex repeated, in driving direction; lap[0] is the start line
+    walls: np.ndarray  # (W, 4) wall segments seen by the forward distance sensor; often empty
+    spacing: float  # m, resampling step of lines and lap path
+    source: str = "<dict>"  # the file the track came from
+    description: str = ""  # free text from the file
 
     @property
     def lap_s(self) -> np.ndarray:
@@ -79,17 +67,11 @@ class Track:
 
 @dataclass(frozen=True)
 class TrackTensors:
-    """A :class:`Track` as tensors on the simulation device.
+    """A :class:`Track` as tensors on the simulation device (m)."""
 
-    Attributes:
-        grid: segments and cell lists for :func:`torchnav.sim.floor.nearest_distance`.
-        lap: ``(P, 2)`` lap path vertices (m). lap_s: ``(P,)`` their arc lengths (m).
-        walls: ``(W, 4)`` wall segments (m). length: lap length (m). width: line width (m).
-    """
-
-    grid: SegmentGrid
-    lap: Tensor
-    lap_s: Tensor
-    walls: Tensor
-    length: float
-    width: float
+    grid: SegmentGrid  # segments and cell lists for torchnav.sim.floor.nearest_distance
+    lap: Tensor  # (P, 2) lap path vertices
+    lap_s: Tensor  # (P,) their arc lengths
+    walls: Tensor  # (W, 4) wall segments
+    length: float  # lap length
+    width: float  # line width

@@ -13,29 +13,16 @@ from ..sim import World, cat_worlds
 
 @dataclass(frozen=True)
 class WorldBatch:
-    """``B`` generated worlds, each with a start and a reachable goal.
+    """``B`` generated worlds, each with a start and a reachable goal."""
 
-    Attributes:
-        world: the obstacles, padded ``(B, N, ...)`` tensors with masks (see :class:`~torchnav.sim.World`).
-        start: ``(B, 3)`` start pose ``[x m, y m, theta rad]``.
-        goal: ``(B, 2)`` goal ``[x, y]`` m.
-        path_length: ``(B,)`` m, length of a collision-free path for the robot's
-            disc from start to goal: never below the shortest one, and 3 - 16% above A*
-            with shortcutting on the test episodes.
-        bounds: ``(B, 4)`` ``[xmin, ymin, xmax, ymax]`` m of each world (walls run along them).
-        difficulty: ``(B,)`` in [0, 1], the difficulty each env was generated at.
-        family: ``B`` family names (``"rooms"``, ..., or ``"map:<name>"`` for a shipped map).
-        robot_radius: m, the disc the paths were planned for.
-    """
-
-    world: World
-    start: Tensor
-    goal: Tensor
-    path_length: Tensor
-    bounds: Tensor
-    difficulty: Tensor
-    family: tuple[str, ...]
-    robot_radius: float
+    world: World  # the obstacles, padded (B, N, ...) tensors with masks
+    start: Tensor  # (B, 3) start pose [x m, y m, theta rad]
+    goal: Tensor  # (B, 2) goal [x, y] m
+    path_length: Tensor  # (B,) m of a collision-free path for the robot's disc: never below the shortest (docs/worlds.md)
+    bounds: Tensor  # (B, 4) [xmin, ymin, xmax, ymax] m of each world (walls run along them)
+    difficulty: Tensor  # (B,) in [0, 1], the difficulty each env was generated at
+    family: tuple[str, ...]  # B family names ("rooms", ..., or "map:<name>" for a shipped map)
+    robot_radius: float  # m, the disc the paths were planned for
 
     def __len__(self) -> int:
         return self.start.shape[0]

@@ -1,17 +1,7 @@
-"""``cave``: cellular-automaton clutter, merged into boxes.
+"""``cave``: cellular-automaton clutter, merged into boxes (docs/worlds.md, "cave").
 
-A ``GRID x GRID`` grid of ``CELL`` m cells is filled at random and smoothed by
-``CA_STEPS`` steps of the usual cave rule (a cell is rock when at least 5 of
-the 9 cells of its 3 x 3 neighbourhood are; outside the grid counts as open),
-which leaves rounded rock masses of a few metres and winding open space. Rock cells are then
-merged into axis-aligned boxes: runs along each row first, then runs of equal
-row-runs up each column.
-
-Slots (fixed for every difficulty): 4 boundary walls and ``MAX_BOXES`` boxes.
-A cave with more boxes than that loses its smallest ones (more open space);
-1 of 20,000 caves at difficulty 1 had more (52), none at 0.5. Pockets of open space cut off by rock
-do occur; placement starts robots in a large connected region.
-"""
+Slots (fixed for every difficulty): 4 boundary walls and ``MAX_BOXES`` boxes; a cave with more
+boxes loses its smallest ones (1 of 20,000 caves at difficulty 1 had more, none at 0.5)."""
 
 from __future__ import annotations
 
@@ -60,10 +50,10 @@ def rock_boxes(rock: Tensor, origin: float, slots: int) -> tuple[Tensor, Tensor]
     return boxes.reshape(b, -1, 5).gather(1, idx[..., None].expand(-1, -1, 5)) * valid[..., None], valid
 
 
-def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
+def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     """Caves at difficulties ``d`` ``(B,)``: the world and its bounds ``(B, 4)`` m."""
     b, like, dev = d.shape[0], d, d.device
-    rock = torch.rand((b, GRID, GRID), generator=gen, device=dev) < params(d)["fill"][:, None, None].float()
+    rock = torch.rand((b, GRID, GRID), generator=generator, device=dev) < params(d)["fill"][:, None, None].float()
     for _ in range(CA_STEPS):
         rock = smooth(rock)
     half = torch.full((b,), GRID * CELL / 2, dtype=like.dtype, device=dev)

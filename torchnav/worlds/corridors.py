@@ -1,14 +1,7 @@
-"""``corridors``: a random maze of corridors of one width.
+"""``corridors``: a random maze of corridors of one width (docs/worlds.md, "corridors").
 
-The maze is an ``n x n`` grid of square cells of side ``corridor_width``: the
-open walls form a random spanning tree of the cells (every cell is reachable,
-dead ends and turns everywhere), plus a few extra openings that make loops.
-Closed wall pieces on one grid line are merged into long segments.
-
-Slots (fixed for every difficulty): 4 boundary walls, then ``MAX_SEGMENTS``
-merged walls (a grid line of ``MAX_CELLS`` units holds at most
-``ceil(MAX_CELLS / 2)`` separate runs).
-"""
+Slots (fixed for every difficulty): 4 boundary walls, then ``MAX_SEGMENTS`` merged walls (a grid
+line of ``MAX_CELLS`` units holds at most ``ceil(MAX_CELLS / 2)`` separate runs)."""
 
 from __future__ import annotations
 
@@ -40,7 +33,7 @@ def params(d: Tensor) -> dict[str, Tensor]:
     }
 
 
-def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
+def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     """Mazes at difficulties ``d`` ``(B,)``: the world and its bounds ``(B, 4)`` m."""
     p = params(d)
     b, like, dev = d.shape[0], d, d.device
@@ -50,8 +43,8 @@ def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
     cell_on = ((cells // m)[None] < n[:, None]) & ((cells % m)[None] < n[:, None])
     a, c, _ = grid_edges(m, m, dev)
     wall_on = cell_on[:, a] & cell_on[:, c]
-    tree = random_spanning_tree(a, c, wall_on, m * m, gen)
-    loops = uniform(0.0, 1.0, wall_on.shape, gen, like) < p["loop_prob"][:, None]
+    tree = random_spanning_tree(a, c, wall_on, m * m, generator)
+    loops = uniform(0.0, 1.0, wall_on.shape, generator, like) < p["loop_prob"][:, None]
     closed = wall_on & ~tree & ~loops  # (B, E): vertical walls (row-major), then horizontal ones
     nv = m * (m - 1)
     # Grid lines of wall units: vertical line c (between columns c and c+1) has one unit per row.

@@ -38,14 +38,14 @@ def params(d: Tensor) -> dict[str, Tensor]:
     }
 
 
-def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
+def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     """Forests at difficulties ``d`` ``(B,)``: the world and its bounds ``(B, 4)`` m."""
     p = params(d)
     b, like, dev = d.shape[0], d, d.device
     shape = (b, MAX_POSTS)
-    radius = uniform(p["radius_min"][:, None], p["radius_max"][:, None], shape, gen, like)
+    radius = uniform(p["radius_min"][:, None], p["radius_max"][:, None], shape, generator, like)
     reach = (SIDE / 2 - radius)[..., None]  # posts stay inside the walls
-    xy = uniform(-reach, reach, (b, MAX_POSTS, 2), gen, like)
+    xy = uniform(-reach, reach, (b, MAX_POSTS, 2), generator, like)
     on = torch.arange(MAX_POSTS, device=dev) < p["posts"][:, None]
     half = torch.full((b,), SIDE / 2, dtype=like.dtype, device=dev)
     world = World(

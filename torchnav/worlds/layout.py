@@ -34,9 +34,9 @@ def lerp(easy: float, hard: float, d: Tensor) -> Tensor:
     return easy + (hard - easy) * d
 
 
-def uniform(lo: Tensor | float, hi: Tensor | float, shape: tuple[int, ...], gen: torch.Generator, like: Tensor) -> Tensor:
-    """Uniform draws in ``[lo, hi)`` of ``shape`` (``lo``/``hi`` broadcast), from ``gen`` only."""
-    return lo + (hi - lo) * torch.rand(shape, generator=gen, dtype=like.dtype, device=like.device)
+def uniform(lo: Tensor | float, hi: Tensor | float, shape: tuple[int, ...], generator: torch.Generator, like: Tensor) -> Tensor:
+    """Uniform draws in ``[lo, hi)`` of ``shape`` (``lo``/``hi`` broadcast), from ``generator`` only."""
+    return lo + (hi - lo) * torch.rand(shape, generator=generator, dtype=like.dtype, device=like.device)
 
 
 def boundary_walls(half_w: Tensor, half_h: Tensor) -> Tensor:
@@ -76,7 +76,7 @@ def grid_edges(rows: int, cols: int, device: torch.device) -> tuple[Tensor, Tens
     return a, b, vertical
 
 
-def random_spanning_tree(a: Tensor, b: Tensor, active: Tensor, num_cells: int, gen: torch.Generator) -> Tensor:
+def random_spanning_tree(a: Tensor, b: Tensor, active: Tensor, num_cells: int, generator: torch.Generator) -> Tensor:
     """Randomised Kruskal over the edges ``a -> b`` ``(E,)`` of a graph, in every env at once.
 
     ``active`` ``(B, E)`` says which edges exist in each env. Edges are tried in a
@@ -87,7 +87,7 @@ def random_spanning_tree(a: Tensor, b: Tensor, active: Tensor, num_cells: int, g
     n, e = active.shape
     dev = active.device
     label = torch.arange(num_cells, device=dev).expand(n, num_cells).clone()
-    order = torch.rand((n, e), generator=gen, device=dev).argsort(dim=1)
+    order = torch.rand((n, e), generator=generator, device=dev).argsort(dim=1)
     tree = torch.zeros(n, e, dtype=torch.bool, device=dev)
     rows = torch.arange(n, device=dev)
     for k in range(e):

@@ -40,17 +40,17 @@ def params(d: Tensor) -> dict[str, Tensor]:
     }
 
 
-def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
+def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     """Open rooms at difficulties ``d`` ``(B,)``: the world and its bounds ``(B, 4)`` m."""
     p = params(d)
     b, like, dev = d.shape[0], d, d.device
     half = p["side"] / 2
     span = (half - EDGE_GAP)[:, None, None]
-    box_xy = uniform(-span, span, (b, MAX_BOXES, 2), gen, like)
-    box_half = uniform(*BOX_HALF, (b, MAX_BOXES, 2), gen, like)
-    yaw = uniform(-math.pi, math.pi, (b, MAX_BOXES, 1), gen, like)
-    circle_xy = uniform(-span, span, (b, MAX_CIRCLES, 2), gen, like)
-    radius = uniform(*CIRCLE_RADIUS, (b, MAX_CIRCLES, 1), gen, like)
+    box_xy = uniform(-span, span, (b, MAX_BOXES, 2), generator, like)
+    box_half = uniform(*BOX_HALF, (b, MAX_BOXES, 2), generator, like)
+    yaw = uniform(-math.pi, math.pi, (b, MAX_BOXES, 1), generator, like)
+    circle_xy = uniform(-span, span, (b, MAX_CIRCLES, 2), generator, like)
+    radius = uniform(*CIRCLE_RADIUS, (b, MAX_CIRCLES, 1), generator, like)
     box_on = torch.arange(MAX_BOXES, device=dev) < p["boxes"][:, None]
     circle_on = torch.arange(MAX_CIRCLES, device=dev) < p["circles"][:, None]
     world = World(

@@ -1,21 +1,10 @@
 """Start and goal placement with a guaranteed collision-free path for the robot's disc.
 
-For each env: sample the world's clearance on a grid of ``resolution`` m
-(:func:`~torchnav.worlds.raster.clearance_grid`), call a cell free when its
-centre is more than ``robot_radius + resolution / sqrt(2)`` m from every
-obstacle and from the world's edge, draw a start cell in a large free
-component, run a geodesic wavefront from it and pick a goal whose path length
-lies in a difficulty-dependent band.
-
-Why the path is safe: clearance is 1-Lipschitz, and every point of a straight
-step between neighbouring cell centres (axis or diagonal) lies within
-``resolution / sqrt(2)`` of one of its two ends, so the polyline through free
-cell centres keeps more than ``robot_radius`` from every obstacle. The start
-and goal are jittered inside their cells (again within ``resolution / sqrt(2)``
-of the centre), so they are collision-free too, and the path's length is the
-wavefront's octile length plus the two jitter offsets: an upper bound on the
-shortest collision-free path, tight to a few percent.
-"""
+Per env: the world's clearance on a grid of ``resolution`` m, free cells more than
+``robot_radius + resolution / sqrt(2)`` m from every obstacle and the edge, a start in a large
+free component, a geodesic wavefront from it, and a goal whose path length lies in a
+difficulty-dependent band. Why the path is safe, and how tight its length is: docs/worlds.md,
+"Starts, goals and the path guarantee"."""
 
 from __future__ import annotations
 
@@ -62,13 +51,13 @@ def free_cells(world: World, bounds: Tensor, robot_radius: float, resolution: fl
     return (clear > need) & (edge > need), centres
 
 
-def _random_cell(candidates: Tensor, gen: torch.Generator) -> Tensor:
+def _random_cell(candidates: Tensor, generator: torch.Generator) -> Tensor:
     """A uniformly drawn True cell (flat index) of each row of ``candidates`` ``(B, N)``; 0 if none."""
-    key = torch.rand(candidates.shape, generator=gen, device=candidates.device)
+    key = torch.rand(candidates.shape, generator=generator, device=candidates.device)
     return torch.where(candidates, key, -1.0).argmax(1)
 
 
-def _start_and_distances(free: Tensor, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+def _start_and_distances(free: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
     """A start cell ``(B,)`` in a large free component and the distances from it ``(B, H * W)``.
 
     The start is drawn uniformly over the free cells. Where its component holds
@@ -78,24 +67,24 @@ def _start_and_distances(free: Tensor, gen: torch.Generator) -> tuple[Tensor, Te
     """
     b = free.shape[0]
     flat_free = free.reshape(b, -1)
-    start = _random_cell(flat_free, gen)
+    start = _random_cell(flat_free, generator)
     dist = geodesic_distance(free, start).reshape(b, -1)
     for _ in range(START_REDRAWS):
         reached = (dist < UNREACHED).sum(1)
         idx = (2 * reached < flat_free.sum(1)).nonzero()[:, 0]
         if idx.numel() == 0:
             break
-        other = _random_cell(flat_free[idx] & (dist[idx] == UNREACHED), gen)
+        other = _random_cell(flat_free[idx] & (dist[idx] == UNREACHED), generator)
         d_other = geodesic_distance(free[idx], other).reshape(idx.numel(), -1)
         better = (d_other < UNREACHED).sum(1) > reached[idx]
         start[idx[better]], dist[idx[better]] = other[better], d_other[better]
     return start, dist
 
 
-def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywhere: Tensor, gen: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
+def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywhere: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
     """Start cell, goal cell (flat indices, ``(B,)``) and the path length between them in cells;
     where ``anywhere`` ``(B,)`` is True the band is every reachable cell."""
-    start, dist = _start_and_distances(free, gen)
+    start, dist = _start_and_distances(free, generator)
     reached = dist < UNREACHED
     cells = dist.to(torch.float64) / ORTHO
     far = torch.where(reached, cells, 0.0).amax(1, keepdim=True)
@@ -104,12 +93,12 @@ def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywh
     in_band = reached & (cells >= lo[:, None] * far) & (cells <= hi[:, None] * far) & (cells >= min_goal_cells[:, None])
     # Fallback when the band is empty (a component too small for min_goal): the farthest reachable cell.
     farthest = torch.where(reached, cells, -1.0).argmax(1)
-    goal = torch.where(in_band.any(1), _random_cell(in_band, gen), farthest)
+    goal = torch.where(in_band.any(1), _random_cell(in_band, generator), farthest)
     return start, goal, cells.gather(1, goal[:, None])[:, 0]
 
 
 def _place(
-    world: World, bounds: Tensor, difficulty: Tensor, anywhere: Tensor, gen: torch.Generator, robot_radius: float, resolution: float,
+    world: World, bounds: Tensor, difficulty: Tensor, anywhere: Tensor, generator: torch.Generator, robot_radius: float, resolution: float,
     min_goal_distance: float,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """:func:`place_episodes` for one chunk of envs."""
@@ -118,10 +107,10 @@ def _place(
     if empty.any():
         raise ValueError(f"no free space for a robot of radius {robot_radius} m at resolution {resolution} m in {int(empty.sum())} env(s)")
     min_goal = torch.where(anywhere, min(ANYWHERE_MIN_GOAL, min_goal_distance), min_goal_distance).to(torch.float64) / resolution
-    start_cell, goal_cell, cells = _place_chunk(free, difficulty, min_goal, anywhere, gen)
+    start_cell, goal_cell, cells = _place_chunk(free, difficulty, min_goal, anywhere, generator)
     n, like, flat = bounds.shape[0], bounds, centres.reshape(-1, 2)
-    jitter = uniform(-0.5 * resolution, 0.5 * resolution, (2, n, 2), gen, like)
-    heading = uniform(-math.pi, math.pi, (n, 1), gen, like)
+    jitter = uniform(-0.5 * resolution, 0.5 * resolution, (2, n, 2), generator, like)
+    heading = uniform(-math.pi, math.pi, (n, 1), generator, like)
     length = cells.to(like.dtype) * resolution + jitter.norm(dim=-1).sum(0)
     return torch.cat((flat[start_cell] + jitter[0], heading), -1), flat[goal_cell] + jitter[1], length
 
@@ -130,7 +119,7 @@ def place_episodes(
     world: World,
     bounds: Tensor,
     difficulty: Tensor,
-    gen: torch.Generator,
+    generator: torch.Generator,
     robot_radius: float = 0.2,
     resolution: float = 0.1,
     min_goal_distance: float = 1.0,
@@ -162,7 +151,7 @@ def place_episodes(
         while j < len(sizes) and (j + 1 - i) * sizes[j] <= _CELLS_PER_CHUNK:
             j += 1
         idx = order[i:j]
-        parts.append(_place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], gen, robot_radius, resolution, min_goal_distance))
+        parts.append(_place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], generator, robot_radius, resolution, min_goal_distance))
         i = j
     inverse = torch.argsort(order)
     return tuple(torch.cat(t)[inverse] for t in zip(*parts))

@@ -1,18 +1,9 @@
 """Clearance of a batch of worlds sampled on a grid, in torch, for threshold tests.
 
-Evaluating every cell against every obstacle costs ``cells x obstacles`` per env
-(a 13 m office at 0.1 m against 50 walls: 850,000 distances). Here the grid is
-cut into blocks of ``block x block`` cells. One coarse pass measures every
-obstacle from every block centre; a cell of the block can only be within
-``reach`` m of an obstacle that is within ``reach + half-diagonal`` of the
-centre, so the fine pass measures each cell against those obstacles only (blocks
-with none are skipped).
-
-The result equals the true clearance wherever that is at most ``reach`` and
-exceeds ``reach`` everywhere else, which is all a test ``clearance > t`` with
-``t <= reach`` needs. Distances come from :func:`torchnav.sim.points_clearance`,
-the simulator's own geometry.
-"""
+Blocks of ``block x block`` cells: a coarse pass from each block centre keeps the obstacles that
+can lie within ``reach`` of the block, a fine pass measures its cells against those only. The
+result is the true clearance wherever that is at most ``reach`` and exceeds ``reach`` elsewhere
+(all a test ``clearance > t`` with ``t <= reach`` needs), from :func:`torchnav.sim.points_clearance`."""
 
 from __future__ import annotations
 

@@ -109,16 +109,14 @@ def mix_worlds(
     generator: torch.Generator,
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
-    robot_radius: float = 0.2,
-    anywhere_goals: float = 0.0,
-    below_level: float = 0.0,
+    **placement: float,
 ) -> WorldBatch:
     """``num_envs`` worlds whose family is drawn per env from ``families``.
 
     ``families``: names as for :func:`make_worlds` (drawn uniformly) or a mapping of
     name to weight (drawn in proportion). ``difficulty``: as for :func:`make_worlds`, or a
     mapping of family name to its own difficulty (a number or 0-d tensor; a per-family
-    curriculum). ``anywhere_goals`` and ``below_level`` as for :func:`make_worlds`. Each family is generated once for all of
+    curriculum). ``placement``: ``robot_radius``, ``anywhere_goals`` and ``below_level`` as for :func:`make_worlds`. Each family is generated once for all of
     its envs; obstacle slots are padded to the largest count of each kind
     (:func:`~torchnav.sim.cat_worlds`), and envs keep the order of the draw.
     """
@@ -142,6 +140,6 @@ def mix_worlds(
         idx = (drawn == k).nonzero()[:, 0]
         if idx.numel():
             level = difficulty[name] if d is None else d[idx]
-            parts.append(make_worlds(name, idx.numel(), level, generator, dev, dtype, robot_radius, anywhere_goals, below_level))
+            parts.append(make_worlds(name, idx.numel(), level, generator, dev, dtype, **placement))
             order.append(idx)
     return cat_batches(parts).select(torch.cat(order).argsort())

@@ -1,16 +1,9 @@
-"""``rooms``: an office of rooms on a grid, separated by walls with doors, some furnished.
+"""``rooms``: an office of rooms on a grid, separated by walls with doors, some furnished (docs/worlds.md, "rooms").
 
-Rooms sit on an ``n x n`` grid; columns and rows have random widths. The doors
-between neighbouring rooms follow a random spanning tree of the room grid (so
-every room can be reached), plus extra doors that make loops. Each room may
-hold one piece of furniture (an oriented box) that keeps ``FURNITURE_GAP`` m
-from every wall, so it never blocks a door.
-
-Slots (fixed for every difficulty): 4 boundary walls, then 2 segments per
-interior wall (``MAX_ROOMS * (MAX_ROOMS - 1) * 2`` walls, vertical ones first):
-segment ``4 + 2k`` runs from the wall's start to its door (or along the whole
-wall when it has none, and then ``4 + 2k + 1`` is masked off). One box per room.
-"""
+Slots (fixed for every difficulty): 4 boundary walls, then 2 segments per interior wall
+(``MAX_ROOMS * (MAX_ROOMS - 1) * 2`` walls, vertical ones first): segment ``4 + 2k`` runs from the
+wall's start to its door (or along the whole wall when it has none, and then ``4 + 2k + 1`` is
+masked off). One box per room."""
 
 from __future__ import annotations
 
@@ -53,39 +46,39 @@ def _edges_along(sizes: Tensor, n: Tensor) -> Tensor:
     return edges - edges[:, -1:] / 2
 
 
-def _furniture(xe: Tensor, ye: Tensor, active: Tensor, prob: Tensor, gen: torch.Generator) -> tuple[Tensor, Tensor]:
+def _furniture(xe: Tensor, ye: Tensor, active: Tensor, prob: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
     """One optional box per room ``(B, R, 5)`` and its mask ``(B, R)``."""
     b, like = xe.shape[0], xe
     r = MAX_ROOMS * MAX_ROOMS
     row, col = torch.arange(r, device=like.device) // MAX_ROOMS, torch.arange(r, device=like.device) % MAX_ROOMS
     x0, x1, y0, y1 = xe[:, col], xe[:, col + 1], ye[:, row], ye[:, row + 1]
-    hx, hy = uniform(*FURNITURE_HALF, (b, r), gen, like), uniform(*FURNITURE_HALF, (b, r), gen, like)
-    yaw = uniform(-math.pi, math.pi, (b, r), gen, like)
+    hx, hy = uniform(*FURNITURE_HALF, (b, r), generator, like), uniform(*FURNITURE_HALF, (b, r), generator, like)
+    yaw = uniform(-math.pi, math.pi, (b, r), generator, like)
     # Shrink to fit: the circumscribed circle stays FURNITURE_GAP m clear of the room's walls.
     room_half = torch.minimum(x1 - x0, y1 - y0) / 2
     circ = torch.hypot(hx, hy)
     scale = ((room_half - FURNITURE_GAP) / circ).clamp(max=1.0)
     hx, hy, circ = hx * scale, hy * scale, circ * scale
-    cx = (x0 + x1) / 2 + uniform(-1.0, 1.0, (b, r), gen, like) * ((x1 - x0) / 2 - FURNITURE_GAP - circ).clamp(min=0)
-    cy = (y0 + y1) / 2 + uniform(-1.0, 1.0, (b, r), gen, like) * ((y1 - y0) / 2 - FURNITURE_GAP - circ).clamp(min=0)
-    on = active & (uniform(0.0, 1.0, (b, r), gen, like) < prob[:, None]) & (scale > 0)
+    cx = (x0 + x1) / 2 + uniform(-1.0, 1.0, (b, r), generator, like) * ((x1 - x0) / 2 - FURNITURE_GAP - circ).clamp(min=0)
+    cy = (y0 + y1) / 2 + uniform(-1.0, 1.0, (b, r), generator, like) * ((y1 - y0) / 2 - FURNITURE_GAP - circ).clamp(min=0)
+    on = active & (uniform(0.0, 1.0, (b, r), generator, like) < prob[:, None]) & (scale > 0)
     return torch.stack((cx, cy, hx, hy, yaw), -1), on
 
 
-def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
+def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     """Offices at difficulties ``d`` ``(B,)``: the world and its bounds ``(B, 4)`` m."""
     p = params(d)
     b, like, dev = d.shape[0], d, d.device
     n = p["rooms_per_side"]
-    xe = _edges_along(uniform(*ROOM_SIZE, (b, MAX_ROOMS), gen, like), n)
-    ye = _edges_along(uniform(*ROOM_SIZE, (b, MAX_ROOMS), gen, like), n)
+    xe = _edges_along(uniform(*ROOM_SIZE, (b, MAX_ROOMS), generator, like), n)
+    ye = _edges_along(uniform(*ROOM_SIZE, (b, MAX_ROOMS), generator, like), n)
     cells = torch.arange(MAX_ROOMS * MAX_ROOMS, device=dev)
     cell_on = ((cells // MAX_ROOMS)[None] < n[:, None]) & ((cells % MAX_ROOMS)[None] < n[:, None])  # (B, R)
     a, c, vertical = grid_edges(MAX_ROOMS, MAX_ROOMS, dev)
     wall_on = cell_on[:, a] & cell_on[:, c]  # (B, E)
-    tree = random_spanning_tree(a, c, wall_on, MAX_ROOMS * MAX_ROOMS, gen)
+    tree = random_spanning_tree(a, c, wall_on, MAX_ROOMS * MAX_ROOMS, generator)
     e = a.shape[0]
-    door = tree | (wall_on & (uniform(0.0, 1.0, (b, e), gen, like) < p["extra_door_prob"][:, None]))
+    door = tree | (wall_on & (uniform(0.0, 1.0, (b, e), generator, like) < p["extra_door_prob"][:, None]))
     # Wall k separates cell a[k] from its right (vertical) or upper neighbour c[k].
     ra, ca = a // MAX_ROOMS, a % MAX_ROOMS
     x0 = torch.where(vertical, xe[:, ca + 1], xe[:, ca])
@@ -94,7 +87,7 @@ def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
     length = (p1 - p0).norm(dim=-1).clamp(min=1e-6)
     unit = (p1 - p0) / length[..., None]
     width = p["door_width"][:, None].expand(b, e)
-    offset = DOOR_END_GAP + uniform(0.0, 1.0, (b, e), gen, like) * (length - 2 * DOOR_END_GAP - width).clamp(min=0)
+    offset = DOOR_END_GAP + uniform(0.0, 1.0, (b, e), generator, like) * (length - 2 * DOOR_END_GAP - width).clamp(min=0)
     first_end = torch.where(door[..., None], p0 + unit * offset[..., None], p1)
     second_start = p0 + unit * (offset + width)[..., None]
     walls = torch.stack((torch.cat((p0, first_end), -1), torch.cat((second_start, p1), -1)), 2).reshape(b, 2 * e, 4)
@@ -102,7 +95,7 @@ def layout(d: Tensor, gen: torch.Generator) -> tuple[World, Tensor]:
     half_w, half_h = xe[:, -1], ye[:, -1]
     segments = torch.cat((boundary_walls(half_w, half_h), walls), 1)
     segment_mask = torch.cat((torch.ones(b, 4, dtype=torch.bool, device=dev), wall_mask), 1)
-    boxes, box_mask = _furniture(xe, ye, cell_on, p["furniture_prob"], gen)
+    boxes, box_mask = _furniture(xe, ye, cell_on, p["furniture_prob"], generator)
     world = World(
         segments=segments, segment_mask=segment_mask,
         circles=like.new_zeros(b, 0, 3), circle_mask=torch.zeros(b, 0, dtype=torch.bool, device=dev),

@@ -1,19 +1,9 @@
 """Batched wavefronts on occupancy grids: geodesic distances from a source cell.
 
-A naive wavefront (a 3x3 min-filter repeated until nothing changes) needs as
-many passes as the longest path has cells. Here each pass instead sweeps whole
-grid lines: along every row, column, diagonal and anti-diagonal, in both
-directions, a value travels to the end of its free run in one segmented
-running minimum. A pass so settles every straight stretch of a path, and the
-number of passes grows with the number of turns of the longest shortest path
-(about 10 to 20 in a 4 x 4 office), not with its length. Envs stop being swept
-once a pass changes nothing in them.
-
-Distances are exact integers: an axis step costs :data:`ORTHO` units and a
-diagonal step :data:`DIAG` (99/70 = 1.414286 > sqrt(2), so a distance never
-understates the length of the octile path it stands for). Divide by
-:data:`ORTHO` for cells.
-"""
+Each pass sweeps whole grid lines (rows, columns, both diagonals, both directions) with a
+segmented running minimum, so the number of passes grows with the turns of the longest shortest
+path, not its length; envs stop once a pass changes nothing. Distances are exact integers: an
+axis step costs :data:`ORTHO`, a diagonal :data:`DIAG` (99/70 > sqrt(2)); see docs/worlds.md."""
 
 from __future__ import annotations
 
