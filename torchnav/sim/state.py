@@ -56,7 +56,7 @@ class SimState:
             frame (``imu.py``); ``(B, 0)`` without an IMU (``SimParams.imu`` None).
         imu_bias: ``(B, 3)`` the IMU's current bias (same units); ``(B, 0)`` without an IMU.
         cam_depth: ``(B, n_cols)`` camera depth row in m (``camera.py``); ``(B, 0)`` without a camera.
-        movers: ``(B, M, 9)`` moving obstacles (``movers.py``); ``M`` may be 0.
+        movers: ``(B, M, 9)`` moving obstacles (``movers.py``; ``(B, M, 12)`` with moving boxes); ``M`` may be 0.
         mover_mask: ``(B, M)`` bool, which mover slots exist.
         mover_plan: ``(B, M, 4 + 2P)`` waypoints of patrols and pedestrians (``movers.py``);
             ``(B, M, 0)`` when every mover is ballistic.
