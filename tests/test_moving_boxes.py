@@ -83,3 +83,69 @@ def test_make_movers_rejects_bad_boxes():
         make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match="half extents"):
         make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, -0.1, 0.3, 0.0]])
+
+
+# -- moving boxes in maps and the task ------------------------------------------------------
+
+BOX_MAP = """
+name: moving_boxes
+size: [10.0, 10.0]
+walls: boundary
+moving_boxes: {count: 3, size_x: [0.4, 0.8], size_y: [0.2, 0.4], speed: [0.2, 0.5], motion: pedestrian, clearance: 1.5, margin: 0.1}
+"""
+
+
+def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
+    from torchnav.envs import make_env
+    from torchnav.sim import points_clearance
+
+    path = tmp_path / "boxes.yaml"
+    path.write_text(BOX_MAP)
+    env = make_env(str(path), num_envs=256, seed=4)
+    env.reset()
+    s = env._state
+    m, mask = s.sim.movers, s.sim.mover_mask
+    assert m.shape == (256, 3, 12) and mask.float().mean() > 0.99
+    hx, hy, r = m[..., 9], m[..., 10], m[..., 4]
+    assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6))[mask].all()
+    assert torch.allclose(r, torch.hypot(hx, hy))
+    # Placed by the largest box's bounding circle: its clearance from the start, the goal and the walls holds for every box.
+    assert ((m[..., :2] - s.start[:, None, :2]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
+    assert ((m[..., :2] - s.goal[:, None]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
+    assert (points_clearance(m[..., :2], s.world) - r)[mask].min() >= 0.1 - 1e-4
+    assert (s.sim.clearance > 0).all()
+    for _ in range(3):
+        env.rand_step()
+    assert env._state.sim.movers.shape == (256, 3, 12) and torch.equal(env._state.sim.movers[..., 9:], m[..., 9:])
+
+
+def test_map_rejects_bad_moving_boxes():
+    from torchnav.maps import MapError, parse_map
+
+    base = {"size": [10.0, 10.0], "walls": ["boundary"]}
+    good = {"count": 2, "size_x": [0.2, 0.4], "size_y": [0.2, 0.3], "speed": [0.1, 0.2]}
+    for bad, key in (({**good, "radius": [0.2, 0.3]}, "moving_boxes.radius"), ({k: v for k, v in good.items() if k != "size_y"}, "moving_boxes.size_y"),
+                     ({**good, "size_x": [0.4, 0.2]}, "moving_boxes.size_x"), ({**good, "size_x": [0.2, 40.0]}, "moving_boxes.size_x")):
+        with pytest.raises(MapError, match=key):
+            parse_map({**base, "moving_boxes": bad})
+    with pytest.raises(MapError, match="not both"):
+        parse_map({**base, "moving_boxes": good, "moving_circles": {"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2]}})
+    spec = parse_map({**base, "moving_boxes": {**good, "yaw": [0.0, 0.5]}})
+    assert spec.moving_circles.size_x == (0.2, 0.4) and spec.moving_circles.yaw == (0.0, 0.5)
+    assert spec.moving_circles.radius == pytest.approx((0.5 * math.hypot(0.4, 0.3),) * 2)
+
+
+def test_generated_worlds_take_moving_boxes_from_worlds_movers():
+    from torchnav.config import ConfigError
+    from torchnav.envs import NavEnv
+    from torchnav.tasks import NavConfig
+
+    movers = {"count": 2, "size_x": [0.4, 0.6], "size_y": [0.3, 0.5], "speed": [0.2, 0.4]}
+    cfg = NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "difficulty": 0.3, "movers": movers}, "max_steps": 50})
+    env = NavEnv(cfg, num_envs=8, seed=1)
+    env.reset()
+    m, mask = env.state.sim.movers, env.state.sim.mover_mask
+    assert m.shape == (8, 2, 12) and mask.any()
+    assert ((m[..., 9] >= 0.2 - 1e-6) & (m[..., 9] <= 0.3 + 1e-6))[mask].all()
+    with pytest.raises(ConfigError, match=r"worlds\.movers\.size_y"):
+        NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "movers": {**movers, "size_y": [0.5, 0.3]}}}).worlds.mover_spec()

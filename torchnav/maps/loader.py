@@ -193,11 +193,19 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
     return rc
 
 
-def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_circles") -> MovingCircles:
-    """``v`` validated as :class:`MovingCircles`; errors name ``k`` (the key: also used for the
-    procedural worlds' ``worlds.movers``, ``tasks.config.WorldsConfig``)."""
-    v = check_mapping(ctx, v, k, ("count", "radius", "speed"), ("motion", "region", "clearance", "margin", "waypoints"))
+def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_circles", boxes: bool = False) -> MovingCircles:
+    """``v`` validated as :class:`MovingCircles` (moving boxes, ``moving_boxes``, with ``boxes``);
+    errors name ``k`` (the key: also used for the procedural worlds' ``worlds.movers``,
+    ``tasks.config.WorldsConfig``)."""
+    shape = ("size_x", "size_y") if boxes else ("radius",)
+    v = check_mapping(ctx, v, k, ("count", *shape, "speed"), ("motion", "region", "clearance", "margin", "waypoints") + (("yaw",) if boxes else ()))
     d = MovingCircles.__dataclass_fields__
+    extents = {}
+    if boxes:
+        extents = {"size_x": check_range(ctx, v["size_x"], f"{k}.size_x", "pos"), "size_y": check_range(ctx, v["size_y"], f"{k}.size_y", "pos"),
+                   "yaw": check_range(ctx, v.get("yaw", list(d["yaw"].default)), f"{k}.yaw")}
+        reach = 0.5 * math.hypot(extents["size_x"][1], extents["size_y"][1])  # the largest box's bounding circle
+        extents["radius"] = (reach, reach)
     motion = v.get("motion", d["motion"].default)
     if motion not in MOTIONS:
         raise ctx.fail(f"{k}.motion", f"expected one of {', '.join(MOTIONS)}, got {show(motion)}")
@@ -209,9 +217,9 @@ def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "movin
         _inside(ctx, f"{k}.region", "a corner", [region[0], region[2]], [region[1], region[3]], size)
     mc = MovingCircles(
         count=check_count(ctx, v["count"], f"{k}.count", MAX_RANDOM),
-        radius=check_range(ctx, v["radius"], f"{k}.radius", "pos"),
+        radius=extents.pop("radius") if boxes else check_range(ctx, v["radius"], f"{k}.radius", "pos"),
         speed=check_range(ctx, v["speed"], f"{k}.speed", "nonneg"),
-        motion=motion, region=region,
+        motion=motion, region=region, **extents,
         clearance=check_number(ctx, v.get("clearance", d["clearance"].default), f"{k}.clearance", "nonneg"),
         margin=check_number(ctx, v.get("margin", d["margin"].default), f"{k}.margin", "nonneg"),
         waypoints=check_count(ctx, v.get("waypoints", d["waypoints"].default), f"{k}.waypoints", 64),
@@ -219,11 +227,11 @@ def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "movin
     if mc.waypoints < 1:
         raise ctx.fail(f"{k}.waypoints", f"expected an integer in [1, 64], got {show(mc.waypoints)}")
     w, h = (region[2] - region[0], region[3] - region[1]) if region else size
-    _fits(ctx, f"{k}.radius", 2 * mc.radius[1], (w, h))
+    _fits(ctx, f"{k}.size_x and size_y" if boxes else f"{k}.radius", 2 * mc.radius[1], (w, h))
     return mc
 
 
-_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles", "moving_circles")
+_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles", "moving_circles", "moving_boxes")
 
 
 def parse_map(
@@ -262,8 +270,17 @@ def parse_map(
         + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
         random_boxes=_random_boxes(ctx, d["random_boxes"], size) if "random_boxes" in d else None,
         random_circles=_random_circles(ctx, d["random_circles"], size) if "random_circles" in d else None,
-        moving_circles=_moving_circles(ctx, d["moving_circles"], size) if "moving_circles" in d else None,
+        moving_circles=_movers(ctx, d, size),
     )
+
+
+def _movers(ctx: Ctx, d: dict, size: tuple[float, float]) -> MovingCircles | None:
+    """The map's ``moving_circles`` or ``moving_boxes`` (one kind of mover per map), or None."""
+    if "moving_circles" in d and "moving_boxes" in d:
+        raise ctx.fail("moving_boxes", "a map declares moving_circles or moving_boxes, not both")
+    if "moving_boxes" in d:
+        return _moving_circles(ctx, d["moving_boxes"], size, "moving_boxes", boxes=True)
+    return _moving_circles(ctx, d["moving_circles"], size) if "moving_circles" in d else None
 
 
 def available_maps() -> list[str]:
