@@ -20,6 +20,7 @@ from typing import Any
 from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_list, check_mapping, check_number, check_range, check_vector, load_named,
                          shipped_folder, shipped_names, show)
 from .occupancy import ImageError, mask_boxes, read_mask
+from ..sim.camera import ObstacleStyles
 from .spec import MOTIONS, MapError, MapSpec, MovingCircles, RandomBoxes, RandomCircles
 
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
@@ -70,36 +71,60 @@ def _walls(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
     return tuple(segments)
 
 
-def _circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
-    def circle(key: str, c: Any) -> tuple[float, float, float]:
+_STYLE_KEYS = ("height", "color")  # a fixed circle's or box's own camera height and colour
+
+
+def _style(ctx: Ctx, d: dict, key: str) -> tuple:
+    """``(height m or None, (r, g, b) or None)`` from an obstacle's optional ``height`` and ``color``."""
+    height = check_number(ctx, d["height"], f"{key}.height", "pos") if "height" in d else None
+    color = None
+    if "color" in d:
+        c = d["color"]
+        if not (isinstance(c, list) and len(c) == 3 and all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 255 for x in c)):
+            raise ctx.fail(f"{key}.color", f"expected [r, g, b] with integers in [0, 255], got {show(c)}")
+        color = tuple(c)
+    return (height, color)
+
+
+def _split(rows: tuple) -> tuple[tuple, tuple]:
+    """``((geometry, style), ...)`` -> ``((geometry, ...), (style, ...))``."""
+    return tuple(r[0] for r in rows), tuple(r[1] for r in rows)
+
+
+def _circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple[tuple, tuple]:
+    """The circles ``(cx, cy, r)`` and their camera styles."""
+    def circle(key: str, c: Any) -> tuple:
+        style = (None, None)
         if isinstance(c, list):  # the compact row form, for maps with hundreds of circles
             cx, cy, r = check_vector(ctx, c, key, 3)
             if r <= 0:
                 raise ctx.fail(key, f"expected [cx, cy, r] with a positive radius r, got {show(c)}")
         elif isinstance(c, dict):
-            c = check_mapping(ctx, c, key, ("center", "radius"), ())
+            c = check_mapping(ctx, c, key, ("center", "radius"), _STYLE_KEYS)
             cx, cy = check_vector(ctx, c["center"], f"{key}.center", 2)
             r = check_number(ctx, c["radius"], f"{key}.radius", "pos")
+            style = _style(ctx, c, key)
         else:
             raise ctx.fail(key, f"expected {{center, radius}} or [cx, cy, r], got {show(c)}")
         _inside(ctx, key, "the circle's edge point", [cx - r, cx + r, cx, cx], [cy, cy, cy - r, cy + r], size)
-        return (cx, cy, r)
+        return ((cx, cy, r), style)
 
-    return check_list(ctx, v, "circles", "a list of {center, radius} or [cx, cy, r]", circle)
+    return _split(check_list(ctx, v, "circles", "a list of {center, radius} or [cx, cy, r]", circle))
 
 
-def _boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
-    def box(key: str, b: Any) -> tuple[float, float, float, float, float]:
-        b = check_mapping(ctx, b, key, ("center", "size"), ("yaw",))
+def _boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple[tuple, tuple]:
+    """The boxes ``(cx, cy, half_x, half_y, yaw)`` and their camera styles."""
+    def box(key: str, b: Any) -> tuple:
+        b = check_mapping(ctx, b, key, ("center", "size"), ("yaw", *_STYLE_KEYS))
         cx, cy = check_vector(ctx, b["center"], f"{key}.center", 2)
         sx, sy = check_vector(ctx, b["size"], f"{key}.size", 2, "pos")
         yaw = check_number(ctx, b.get("yaw", 0.0), f"{key}.yaw")
         c, s = math.cos(yaw), math.sin(yaw)
         corners = [(cx + c * dx - s * dy, cy + s * dx + c * dy) for dx in (-sx / 2, sx / 2) for dy in (-sy / 2, sy / 2)]
         _inside(ctx, key, "a corner of the box", [p[0] for p in corners], [p[1] for p in corners], size)
-        return (cx, cy, sx / 2, sy / 2, yaw)
+        return ((cx, cy, sx / 2, sy / 2, yaw), _style(ctx, b, key))
 
-    return check_list(ctx, v, "boxes", "a list of {center, size, yaw}", box)
+    return _split(check_list(ctx, v, "boxes", "a list of {center, size, yaw}", box))
 
 
 def _polygons(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
@@ -259,15 +284,17 @@ def parse_map(
     for k in ("walls", "polygons", "circles", "boxes"):
         if isinstance(d.get(k), list) and len(d[k]) > MAX_FIXED:
             raise ctx.fail(k, f"{len(d[k]):,} entries; a map holds at most {MAX_FIXED:,} of a kind")
+    circles, circle_styles = _circles(ctx, d["circles"], size) if "circles" in d else ((), ())
+    boxes, box_styles = _boxes(ctx, d["boxes"], size) if "boxes" in d else ((), ())
     return MapSpec(
         name=name,
         source=source,
         size=size,
         segments=(_walls(ctx, d["walls"], size) if "walls" in d else ())
         + (_polygons(ctx, d["polygons"], size) if "polygons" in d else ()),
-        circles=_circles(ctx, d["circles"], size) if "circles" in d else (),
-        boxes=(_boxes(ctx, d["boxes"], size) if "boxes" in d else ())
-        + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
+        circles=circles,
+        boxes=boxes + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
+        styles=ObstacleStyles(circles=circle_styles, boxes=box_styles),
         random_boxes=_random_boxes(ctx, d["random_boxes"], size) if "random_boxes" in d else None,
         random_circles=_random_circles(ctx, d["random_circles"], size) if "random_circles" in d else None,
         moving_circles=_movers(ctx, d, size),

@@ -12,6 +12,7 @@ from typing import Any
 
 import torch
 
+from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.state import World, make_world
 
 
@@ -86,6 +87,8 @@ class MapSpec:
             ``boxes``, then the boxes covering the ``occupancy`` image.
         random_boxes / random_circles: what the task re-places on reset, or None.
         moving_circles: the moving discs (or boxes: ``moving_boxes``) the task places on reset, or None.
+        styles: the camera heights and colours of the fixed circles and boxes that declare
+            ``height`` or ``color`` (slot ``i`` of a kind is its ``i``-th fixed obstacle).
     """
 
     name: str
@@ -97,6 +100,7 @@ class MapSpec:
     random_boxes: RandomBoxes | None = None
     random_circles: RandomCircles | None = None
     moving_circles: MovingCircles | None = None
+    styles: ObstacleStyles = ObstacleStyles()
 
     @property
     def n_fixed_boxes(self) -> int:
