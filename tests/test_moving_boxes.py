@@ -95,13 +95,17 @@ moving_boxes: {count: 3, size_x: [0.4, 0.8], size_y: [0.2, 0.4], speed: [0.2, 0.
 """
 
 
-def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
+def _env_on(tmp_path, text: str, **kw):
     from torchnav.envs import make_env
+
+    (tmp_path / "map.yaml").write_text(text)
+    return make_env(str(tmp_path / "map.yaml"), **kw)
+
+
+def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
     from torchnav.sim import points_clearance
 
-    path = tmp_path / "boxes.yaml"
-    path.write_text(BOX_MAP)
-    env = make_env(str(path), num_envs=256, seed=4)
+    env = _env_on(tmp_path, BOX_MAP, num_envs=256, seed=4)
     env.reset()
     s = env._state
     m, mask = s.sim.movers, s.sim.mover_mask
@@ -110,8 +114,8 @@ def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
     assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6))[mask].all()
     assert torch.allclose(r, torch.hypot(hx, hy))
     # Placed by the largest box's bounding circle: its clearance from the start, the goal and the walls holds for every box.
-    assert ((m[..., :2] - s.start[:, None, :2]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
-    assert ((m[..., :2] - s.goal[:, None]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
+    for far_from in (s.start[:, :2], s.goal):
+        assert ((m[..., :2] - far_from[:, None]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
     assert (points_clearance(m[..., :2], s.world) - r)[mask].min() >= 0.1 - 1e-4
     assert (s.sim.clearance > 0).all()
     for _ in range(3):
