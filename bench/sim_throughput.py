@@ -28,7 +28,7 @@ docs/performance.md for the method and what each figure means.
     python bench/sim_throughput.py --device cpu --threads 1 --cpu-time --sizes 4096 --modes compiled --options pedestrians4
 
 ``--options`` adds rows of the same load with one simulator option switched on
-(``OPTIONS``: the IMU, the camera's depth row, moving discs), each next to the plain
+(``OPTIONS``: the IMU, the camera's depth row, moving discs and boxes), each next to the plain
 step (option ``plain``) in the same run, and prints their throughput relative to it.
 """
 
@@ -84,6 +84,7 @@ OPTIONS: dict[str, tuple[dict[str, Any], int | str]] = {
     "camera16": ({"camera": CameraParams(n_cols=16)}, 0),
     "camera64": ({"camera": CameraParams(n_cols=64)}, 0),
     "movers4": ({}, 4),  # 4 discs bouncing inside the arena, seen by lidar and collision
+    "boxmovers4": ({}, "boxes"),  # 4 boxes (the discs' rows with half extents and a yaw) bouncing inside the arena
     "pedestrians4": ({}, "pedestrians"),  # 4 pedestrians cycling through 4 waypoints, avoiding each other and the robot
     "all": ({"imu": ImuParams(), "camera": CameraParams(n_cols=64)}, 4),
     "randomized": ({}, 0),  # per-env EnvParams: limits, 0-2 steps of actuator delay, lidar offset and range, radius
@@ -131,14 +132,18 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
     world = planar_world(world.to(device))
     discs = None
     if movers:  # random discs bouncing inside the arena (they may start on a robot: the bench does not care)
-        m = 4 if movers == "pedestrians" else int(movers)
+        m = 4 if movers in ("pedestrians", "boxes") else int(movers)
         rows = torch.stack((u(-3.5, 3.5, b, m), u(-3.5, 3.5, b, m), u(-0.5, 0.5, b, m), u(-0.5, 0.5, b, m), u(0.2, 0.3, b, m)), -1)
         pts = [[[0.0, 0.0]] * 4] * m if movers == "pedestrians" else None
         one, mask, plan = make_movers(1, [[0.0, 0.0, 0.5, 0.0, 0.3]] * m, region=(-h, -h, h, h), waypoints=pts, pedestrians=True)
         plan = torch.zeros(b, m, plan.shape[-1]) + plan  # a fresh tensor, also when empty
         if movers == "pedestrians":  # 4 random waypoints each
             plan[..., 4:] = u(-3.5, 3.5, b, m, 8)
-        discs = (torch.cat((rows, one[:, :, 5:].expand(b, -1, -1)), -1).to(device), mask.expand(b, -1).contiguous().to(device), plan.to(device))
+        rows = torch.cat((rows, one[:, :, 5:].expand(b, -1, -1)), -1)
+        if movers == "boxes":  # half extents 0.15-0.3 m, any yaw; the radius column is the bounding circle's
+            hx, hy = u(0.15, 0.3, b, m), u(0.15, 0.3, b, m)
+            rows = torch.cat((rows[..., :4], torch.hypot(hx, hy)[..., None], rows[..., 5:], torch.stack((hx, hy, u(-math.pi, math.pi, b, m)), -1)), -1)
+        discs = (rows.to(device), mask.expand(b, -1).contiguous().to(device), plan.to(device))
     state = init_state(pose.to(device), world, params, movers=discs)
     return state, world, [a.to(device) for a in actions]
 

@@ -20,6 +20,7 @@ from typing import Any
 from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_list, check_mapping, check_number, check_range, check_vector, load_named,
                          shipped_folder, shipped_names, show)
 from .occupancy import ImageError, mask_boxes, read_mask
+from ..sim.camera import ObstacleStyles
 from .spec import MOTIONS, MapError, MapSpec, MovingCircles, RandomBoxes, RandomCircles
 
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
@@ -70,36 +71,60 @@ def _walls(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
     return tuple(segments)
 
 
-def _circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
-    def circle(key: str, c: Any) -> tuple[float, float, float]:
+_STYLE_KEYS = ("height", "color")  # a fixed circle's or box's own camera height and colour
+
+
+def _style(ctx: Ctx, d: dict, key: str) -> tuple:
+    """``(height m or None, (r, g, b) or None)`` from an obstacle's optional ``height`` and ``color``."""
+    height = check_number(ctx, d["height"], f"{key}.height", "pos") if "height" in d else None
+    color = None
+    if "color" in d:
+        c = d["color"]
+        if not (isinstance(c, list) and len(c) == 3 and all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 255 for x in c)):
+            raise ctx.fail(f"{key}.color", f"expected [r, g, b] with integers in [0, 255], got {show(c)}")
+        color = tuple(c)
+    return (height, color)
+
+
+def _split(rows: tuple) -> tuple[tuple, tuple]:
+    """``((geometry, style), ...)`` -> ``((geometry, ...), (style, ...))``."""
+    return tuple(r[0] for r in rows), tuple(r[1] for r in rows)
+
+
+def _circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple[tuple, tuple]:
+    """The circles ``(cx, cy, r)`` and their camera styles."""
+    def circle(key: str, c: Any) -> tuple:
+        style = (None, None)
         if isinstance(c, list):  # the compact row form, for maps with hundreds of circles
             cx, cy, r = check_vector(ctx, c, key, 3)
             if r <= 0:
                 raise ctx.fail(key, f"expected [cx, cy, r] with a positive radius r, got {show(c)}")
         elif isinstance(c, dict):
-            c = check_mapping(ctx, c, key, ("center", "radius"), ())
+            c = check_mapping(ctx, c, key, ("center", "radius"), _STYLE_KEYS)
             cx, cy = check_vector(ctx, c["center"], f"{key}.center", 2)
             r = check_number(ctx, c["radius"], f"{key}.radius", "pos")
+            style = _style(ctx, c, key)
         else:
             raise ctx.fail(key, f"expected {{center, radius}} or [cx, cy, r], got {show(c)}")
         _inside(ctx, key, "the circle's edge point", [cx - r, cx + r, cx, cx], [cy, cy, cy - r, cy + r], size)
-        return (cx, cy, r)
+        return ((cx, cy, r), style)
 
-    return check_list(ctx, v, "circles", "a list of {center, radius} or [cx, cy, r]", circle)
+    return _split(check_list(ctx, v, "circles", "a list of {center, radius} or [cx, cy, r]", circle))
 
 
-def _boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
-    def box(key: str, b: Any) -> tuple[float, float, float, float, float]:
-        b = check_mapping(ctx, b, key, ("center", "size"), ("yaw",))
+def _boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple[tuple, tuple]:
+    """The boxes ``(cx, cy, half_x, half_y, yaw)`` and their camera styles."""
+    def box(key: str, b: Any) -> tuple:
+        b = check_mapping(ctx, b, key, ("center", "size"), ("yaw", *_STYLE_KEYS))
         cx, cy = check_vector(ctx, b["center"], f"{key}.center", 2)
         sx, sy = check_vector(ctx, b["size"], f"{key}.size", 2, "pos")
         yaw = check_number(ctx, b.get("yaw", 0.0), f"{key}.yaw")
         c, s = math.cos(yaw), math.sin(yaw)
         corners = [(cx + c * dx - s * dy, cy + s * dx + c * dy) for dx in (-sx / 2, sx / 2) for dy in (-sy / 2, sy / 2)]
         _inside(ctx, key, "a corner of the box", [p[0] for p in corners], [p[1] for p in corners], size)
-        return (cx, cy, sx / 2, sy / 2, yaw)
+        return ((cx, cy, sx / 2, sy / 2, yaw), _style(ctx, b, key))
 
-    return check_list(ctx, v, "boxes", "a list of {center, size, yaw}", box)
+    return _split(check_list(ctx, v, "boxes", "a list of {center, size, yaw}", box))
 
 
 def _polygons(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
@@ -193,11 +218,19 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
     return rc
 
 
-def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_circles") -> MovingCircles:
-    """``v`` validated as :class:`MovingCircles`; errors name ``k`` (the key: also used for the
-    procedural worlds' ``worlds.movers``, ``tasks.config.WorldsConfig``)."""
-    v = check_mapping(ctx, v, k, ("count", "radius", "speed"), ("motion", "region", "clearance", "margin", "waypoints"))
+def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_circles", boxes: bool = False) -> MovingCircles:
+    """``v`` validated as :class:`MovingCircles` (moving boxes, ``moving_boxes``, with ``boxes``);
+    errors name ``k`` (the key: also used for the procedural worlds' ``worlds.movers``,
+    ``tasks.config.WorldsConfig``)."""
+    shape = ("size_x", "size_y") if boxes else ("radius",)
+    v = check_mapping(ctx, v, k, ("count", *shape, "speed"), ("motion", "region", "clearance", "margin", "waypoints") + (("yaw",) if boxes else ()))
     d = MovingCircles.__dataclass_fields__
+    extents = {}
+    if boxes:
+        extents = {"size_x": check_range(ctx, v["size_x"], f"{k}.size_x", "pos"), "size_y": check_range(ctx, v["size_y"], f"{k}.size_y", "pos"),
+                   "yaw": check_range(ctx, v.get("yaw", list(d["yaw"].default)), f"{k}.yaw")}
+        reach = 0.5 * math.hypot(extents["size_x"][1], extents["size_y"][1])  # the largest box's bounding circle
+        extents["radius"] = (reach, reach)
     motion = v.get("motion", d["motion"].default)
     if motion not in MOTIONS:
         raise ctx.fail(f"{k}.motion", f"expected one of {', '.join(MOTIONS)}, got {show(motion)}")
@@ -209,9 +242,9 @@ def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "movin
         _inside(ctx, f"{k}.region", "a corner", [region[0], region[2]], [region[1], region[3]], size)
     mc = MovingCircles(
         count=check_count(ctx, v["count"], f"{k}.count", MAX_RANDOM),
-        radius=check_range(ctx, v["radius"], f"{k}.radius", "pos"),
+        radius=extents.pop("radius") if boxes else check_range(ctx, v["radius"], f"{k}.radius", "pos"),
         speed=check_range(ctx, v["speed"], f"{k}.speed", "nonneg"),
-        motion=motion, region=region,
+        motion=motion, region=region, **extents,
         clearance=check_number(ctx, v.get("clearance", d["clearance"].default), f"{k}.clearance", "nonneg"),
         margin=check_number(ctx, v.get("margin", d["margin"].default), f"{k}.margin", "nonneg"),
         waypoints=check_count(ctx, v.get("waypoints", d["waypoints"].default), f"{k}.waypoints", 64),
@@ -219,11 +252,11 @@ def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "movin
     if mc.waypoints < 1:
         raise ctx.fail(f"{k}.waypoints", f"expected an integer in [1, 64], got {show(mc.waypoints)}")
     w, h = (region[2] - region[0], region[3] - region[1]) if region else size
-    _fits(ctx, f"{k}.radius", 2 * mc.radius[1], (w, h))
+    _fits(ctx, f"{k}.size_x and size_y" if boxes else f"{k}.radius", 2 * mc.radius[1], (w, h))
     return mc
 
 
-_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles", "moving_circles")
+_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles", "moving_circles", "moving_boxes")
 
 
 def parse_map(
@@ -251,19 +284,30 @@ def parse_map(
     for k in ("walls", "polygons", "circles", "boxes"):
         if isinstance(d.get(k), list) and len(d[k]) > MAX_FIXED:
             raise ctx.fail(k, f"{len(d[k]):,} entries; a map holds at most {MAX_FIXED:,} of a kind")
+    circles, circle_styles = _circles(ctx, d["circles"], size) if "circles" in d else ((), ())
+    boxes, box_styles = _boxes(ctx, d["boxes"], size) if "boxes" in d else ((), ())
     return MapSpec(
         name=name,
         source=source,
         size=size,
         segments=(_walls(ctx, d["walls"], size) if "walls" in d else ())
         + (_polygons(ctx, d["polygons"], size) if "polygons" in d else ()),
-        circles=_circles(ctx, d["circles"], size) if "circles" in d else (),
-        boxes=(_boxes(ctx, d["boxes"], size) if "boxes" in d else ())
-        + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
+        circles=circles,
+        boxes=boxes + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
+        styles=ObstacleStyles(circles=circle_styles, boxes=box_styles),
         random_boxes=_random_boxes(ctx, d["random_boxes"], size) if "random_boxes" in d else None,
         random_circles=_random_circles(ctx, d["random_circles"], size) if "random_circles" in d else None,
-        moving_circles=_moving_circles(ctx, d["moving_circles"], size) if "moving_circles" in d else None,
+        moving_circles=_movers(ctx, d, size),
     )
+
+
+def _movers(ctx: Ctx, d: dict, size: tuple[float, float]) -> MovingCircles | None:
+    """The map's ``moving_circles`` or ``moving_boxes`` (one kind of mover per map), or None."""
+    if "moving_circles" in d and "moving_boxes" in d:
+        raise ctx.fail("moving_boxes", "a map declares moving_circles or moving_boxes, not both")
+    if "moving_boxes" in d:
+        return _moving_circles(ctx, d["moving_boxes"], size, "moving_boxes", boxes=True)
+    return _moving_circles(ctx, d["moving_circles"], size) if "moving_circles" in d else None
 
 
 def available_maps() -> list[str]:

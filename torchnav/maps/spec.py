@@ -12,6 +12,7 @@ from typing import Any
 
 import torch
 
+from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.state import World, make_world
 
 
@@ -46,7 +47,8 @@ MOTIONS = ("bounce", "constant", "patrol", "pedestrian")
 
 @dataclass(frozen=True)
 class MovingCircles:
-    """Moving discs the task places at random on every reset (``moving_circles`` in YAML).
+    """Moving discs (or boxes) the task places at random on every reset (``moving_circles``,
+    ``moving_boxes`` in YAML).
 
     Each gets a speed in ``speed``. ``bounce``: a uniformly random heading, bouncing inside
     ``region`` (default: the whole map); ``constant``: the same, driving straight on (through
@@ -62,6 +64,12 @@ class MovingCircles:
     clearance: float = 1.0  # m, min distance from the robot start and from the goal at reset
     margin: float = 0.1  # m, min gap to obstacles, walls and other movers at reset
     waypoints: int = 4  # random waypoints per mover ("patrol", "pedestrian")
+    # Moving boxes (``moving_boxes`` in YAML) instead of discs: FULL extents along the box's own axes,
+    # m (min, max), and a yaw drawn once per reset (a box translates without turning). ``radius`` is
+    # then the largest bounding circle's, fixed: it places and bounces the boxes. None: discs.
+    size_x: tuple[float, float] | None = None
+    size_y: tuple[float, float] | None = None
+    yaw: tuple[float, float] = (-math.pi, math.pi)  # rad, (min, max)
 
 
 @dataclass(frozen=True)
@@ -78,7 +86,9 @@ class MapSpec:
         boxes: fixed boxes ``(cx, cy, half_x, half_y, yaw)``: HALF extents in m, yaw in rad;
             ``boxes``, then the boxes covering the ``occupancy`` image.
         random_boxes / random_circles: what the task re-places on reset, or None.
-        moving_circles: the moving discs the task places on reset, or None.
+        moving_circles: the moving discs (or boxes: ``moving_boxes``) the task places on reset, or None.
+        styles: the camera heights and colours of the fixed circles and boxes that declare
+            ``height`` or ``color`` (slot ``i`` of a kind is its ``i``-th fixed obstacle).
     """
 
     name: str
@@ -90,6 +100,7 @@ class MapSpec:
     random_boxes: RandomBoxes | None = None
     random_circles: RandomCircles | None = None
     moving_circles: MovingCircles | None = None
+    styles: ObstacleStyles = ObstacleStyles()
 
     @property
     def n_fixed_boxes(self) -> int:

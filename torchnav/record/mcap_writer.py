@@ -148,6 +148,7 @@ class EpisodeRecorder:
         params = getattr(env.task, "params", None)
         self.imu = getattr(params, "imu", None) is not None
         self.camera = getattr(params, "camera", None)
+        self.styles = getattr(getattr(env.task, "spec", None), "styles", None)  # a map's own obstacle heights and colours
         self.movers = getattr(env.task, "n_movers", 0) > 0
         self.topics = self.TOPICS + (("imu",) if self.imu else ()) + (("camera", "camera_depth") if self.camera else ()) + (("movers",) if self.movers else ())
         self.streams = [scene.EnvStream(i, env, self) for i in self.envs]
@@ -353,7 +354,7 @@ class EpisodeRecorder:
         if state is not None and self.camera is not None:  # rendered for the recorded envs only
             sim = state.sim[idx]
             mw = mover_world(sim.movers, sim.mover_mask) if sim.movers.shape[1] else None
-            sel["depth1"], sel["rgb1"] = camera_image(sim.pose, state.world[idx], self.camera, mw)
+            sel["depth1"], sel["rgb1"] = camera_image(sim.pose, state.world[idx], self.camera, mw, self.styles)
         return TensorDict(sel, batch_size=[len(self.envs)])
 
     def _drain(self, force_flush: bool = False) -> None:

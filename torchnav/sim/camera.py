@@ -6,7 +6,8 @@ the hit's distance along the optical axis (``range * cos(column angle)``, what a
 camera reports), clamped to ``max_range`` (misses read ``max_range``).
 
 The RGB image treats every obstacle as a prism standing on the floor, of its kind's
-height and colour (``CameraParams``): in column ``j`` the pixel of row ``i`` looks
+height and colour (``CameraParams``), or its own (:class:`ObstacleStyles`, from a map's
+``height`` and ``color`` keys): in column ``j`` the pixel of row ``i`` looks
 up at ``tan(e_i) = (n_rows/2 - i - 1/2) / f`` and reaches the nearest obstacle's face
 at height ``height + z tan(e_i)``. If that height lies within the obstacle it sees the
 obstacle, else the floor (looking down) or the sky. Only the nearest obstacle of a
@@ -15,15 +16,37 @@ column is drawn: a taller one behind a low box is hidden. Colours darken with di
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import Tensor
 
 from .math import rotate
-from .params import CameraParams
-from .raycast import cast_rays
-from .state import World
+from .params import RGB, CameraParams
+from .raycast import KINDS, cast_rays
+from .state import World, planar_rows
 
-_KINDS = ("segments", "circles", "boxes")
+Style = tuple[float | None, RGB | None]  # height m, colour; None: the kind's default from CameraParams
+
+
+@dataclass(frozen=True)
+class ObstacleStyles:
+    """Camera heights and colours of single obstacles, for the RGB render.
+
+    Entry ``i`` of a kind styles slot ``i`` of that kind in every env (a map's fixed obstacles
+    come first, see ``MapSpec``); slots past the tuple, and ``None`` entries, keep the kind's
+    height and colour from :class:`CameraParams`."""
+
+    segments: tuple[Style, ...] = ()
+    circles: tuple[Style, ...] = ()
+    boxes: tuple[Style, ...] = ()
+
+    def table(self, key: str, n: int, height: float, color: RGB, like: Tensor) -> Tensor:
+        """``(n, 4)`` rows ``[height, r, g, b]`` of the first ``n`` slots of kind ``key``."""
+        rows = [(height, *color)] * n
+        for i, (h, c) in enumerate(getattr(self, key)[:n]):
+            rows[i] = (height if h is None else h, *(color if c is None else c))
+        return torch.tensor(rows, dtype=like.dtype, device=like.device).reshape(n, 4)
 
 
 def camera_rays(pose: Tensor, camera: CameraParams) -> tuple[Tensor, Tensor, Tensor]:
@@ -35,15 +58,6 @@ def camera_rays(pose: Tensor, camera: CameraParams) -> tuple[Tensor, Tensor, Ten
         x, y = x + dx, y + dy
     local = torch.tensor(camera.angles(), dtype=pose.dtype, device=pose.device)
     return torch.stack((x, y), dim=-1), (th + oyaw).unsqueeze(-1) + local, local
-
-
-def _only(world: World, key: str) -> World:
-    """``world`` with every kind but ``key`` emptied (zero slots)."""
-    parts = {}
-    for k, mk in (("segments", "segment_mask"), ("circles", "circle_mask"), ("boxes", "box_mask")):
-        t, m = getattr(world, k), getattr(world, mk)
-        parts[k], parts[mk] = (t, m) if k == key else (t[:, :0], m[:, :0])
-    return World(**parts, batch_size=world.batch_size, device=world.device)
 
 
 def camera_depth(pose: Tensor, world: World, camera: CameraParams, movers: World | None = None) -> Tensor:
@@ -58,28 +72,37 @@ def camera_depth(pose: Tensor, world: World, camera: CameraParams, movers: World
 
 
 @torch.no_grad()
-def camera_image(pose: Tensor, world: World, camera: CameraParams, movers: World | None = None) -> tuple[Tensor, Tensor]:
+def camera_image(pose: Tensor, world: World, camera: CameraParams, movers: World | None = None,
+                 styles: ObstacleStyles | None = None) -> tuple[Tensor, Tensor]:
     """Render the camera: depth ``(B, n_cols)`` in m (as :func:`camera_depth`) and an RGB image
-    ``(B, n_rows, n_cols, 3)`` uint8 (row 0 at the top, column 0 on the left)."""
+    ``(B, n_rows, n_cols, 3)`` uint8 (row 0 at the top, column 0 on the left). ``styles`` gives
+    single obstacles of ``world`` their own height and colour."""
     origin, angles, local = camera_rays(pose, camera)
-    dists, heights, colors = [], [], []
-    for key, h, c in zip(_KINDS, (camera.wall_height, camera.circle_height, camera.box_height),
-                         (camera.wall_color, camera.circle_color, camera.box_color)):
-        if getattr(world, key).shape[1]:
-            dists.append(cast_rays(origin, angles, _only(world, key)))
-            heights.append(h)
-            colors.append(c)
-    if movers is not None:
-        dists.append(cast_rays(origin, angles, movers))
-        heights.append(camera.mover_height)
-        colors.append(camera.mover_color)
+    dx, dy = torch.cos(angles)[..., None], torch.sin(angles)[..., None]  # (B, W, 1)
+    ox, oy = origin[:, 0, None, None], origin[:, 1, None, None]
+    styles = styles or ObstacleStyles()
+    defaults = {"segments": (camera.wall_height, camera.wall_color), "circles": (camera.circle_height, camera.circle_color),
+                "boxes": (camera.box_height, camera.box_color)}
+    dists, looks = [], []  # per kind: nearest hit (B, W) and that obstacle's [height, r, g, b] (B, W, 4)
+    for source, kind_styles in ((world, styles), (movers, None)):
+        if source is None:
+            continue
+        for key, mkey, fn, rows in KINDS:
+            obs, mask = getattr(source, key), getattr(source, mkey)
+            if not obs.shape[1]:
+                continue
+            hits = fn(ox, oy, dx, dy, planar_rows(rows(obs))[:, None], mask[:, None])  # (B, W, N)
+            dist, idx = hits.min(-1)
+            height, color = defaults[key] if kind_styles else (camera.mover_height, camera.mover_color)
+            table = (kind_styles or ObstacleStyles()).table(key, obs.shape[1], height, color, pose)
+            dists.append(dist)
+            looks.append(table[idx])
     dt, like = pose.dtype, pose
     b, w, h = pose.shape[0], camera.n_cols, camera.n_rows
     if dists:
-        stacked = torch.stack(dists)  # (K, B, W)
-        dist, kind = stacked.min(0)
-        height = torch.tensor(heights, dtype=dt, device=like.device)[kind]  # (B, W)
-        color = torch.tensor(colors, dtype=dt, device=like.device)[kind]  # (B, W, 3)
+        dist, kind = torch.stack(dists).min(0)  # (B, W)
+        look = torch.stack(looks).gather(0, kind[None, ..., None].expand(1, b, w, 4))[0]
+        height, color = look[..., 0], look[..., 1:]
     else:
         dist = torch.full((b, w), float("inf"), dtype=dt, device=like.device)
         height = torch.zeros_like(dist)

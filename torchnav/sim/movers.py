@@ -1,9 +1,20 @@
-"""Moving obstacles: discs with velocities, stepped inside the batched simulator step.
+"""Moving obstacles: discs and boxes with velocities, stepped inside the batched simulator step.
 
 Each env holds ``M`` mover slots as one ``(B, M, 9)`` tensor (``SimState.movers``)
 with a ``(B, M)`` bool mask; the columns are ``MOVER_FIELDS``:
 
     x, y (m), vx, vy (m/s), radius (m), xmin, ymin, xmax, ymax (m: the region)
+
+Batches with moving boxes carry three more columns, ``BOX_FIELDS`` (``(B, M, 12)``):
+
+    half_x, half_y (m), yaw (rad)
+
+A slot with ``half_x > 0`` or ``half_y > 0`` is an oriented box centred at ``x, y``
+that translates without turning; its ``radius`` is its bounding circle's
+(``hypot(half_x, half_y)``), which is what the motion below uses (a box bounces when
+its bounding circle meets the region's edge; pedestrians keep that circle clear).
+Slots with both half extents 0 are discs. Without boxes the tensor keeps its 9
+columns, and the step costs what it did.
 
 Three kinds of motion:
 
@@ -25,8 +36,8 @@ index of the next waypoint, the number of waypoints ``n`` (1 to ``P``), then ``P
 waypoints ``x, y`` (m). Without any patrol or pedestrian the plan is ``(B, M, 0)`` and
 costs nothing. Every mover also applies its region (unbounded for most patrols).
 Masked slots move too but are seen by nothing. The lidar, the camera and collision
-treat a mover like a static circle at its position after the step; movers pass
-through walls and static obstacles.
+treat a mover like a static circle (or box) at its position after the step; movers
+pass through walls and static obstacles.
 """
 
 from __future__ import annotations
@@ -42,6 +53,7 @@ from .state import World, _planar_copy
 
 MOVER_FIELDS = ("x", "y", "vx", "vy", "radius", "xmin", "ymin", "xmax", "ymax")
 N_MOVER_FIELDS = len(MOVER_FIELDS)
+BOX_FIELDS = ("half_x", "half_y", "yaw")  # the columns after MOVER_FIELDS of batches with moving boxes
 BALLISTIC, PATROL, PEDESTRIAN = 0, 1, 2
 PLAN_FIELDS = ("kind", "speed", "target", "n")  # then P waypoints (x, y)
 PED_TAU = 0.5  # s, relaxation time of a pedestrian's velocity towards the desired one
@@ -52,8 +64,8 @@ PED_ARRIVE = 0.3  # m, a pedestrian has reached a waypoint this close to it
 
 
 class Movers(NamedTuple):
-    """Moving obstacles of a batch: ``rows`` ``(B, M, 9)``, ``mask`` ``(B, M)`` bool and
-    ``plan`` ``(B, M, 4 + 2P)`` or ``(B, M, 0)`` (module docstring)."""
+    """Moving obstacles of a batch: ``rows`` ``(B, M, 9)`` (``(B, M, 12)`` with boxes), ``mask``
+    ``(B, M)`` bool and ``plan`` ``(B, M, 4 + 2P)`` or ``(B, M, 0)`` (module docstring)."""
 
     rows: Tensor
     mask: Tensor
@@ -69,19 +81,33 @@ def make_movers(
     *,
     waypoints: Sequence[Sequence[Sequence[float]]] | None = None,
     pedestrians: bool = False,
+    boxes: Sequence[Sequence[float]] | Tensor | None = None,
 ) -> Movers:
     """The same movers in every env: ``discs`` ``(M, 5)`` rows ``[x, y, vx, vy, radius]``,
     bouncing inside ``region`` ``(xmin, ymin, xmax, ymax)`` (``None``: unbounded, constant velocity).
 
-    ``waypoints``, one list of ``[x, y]`` per disc, makes the discs with a non-empty list
+    ``boxes`` ``(K, 7)`` rows ``[x, y, vx, vy, half_x, half_y, yaw]`` add moving boxes after
+    the discs (slots ``M`` to ``M + K - 1``; the rows then have 12 columns, module docstring).
+
+    ``waypoints``, one list of ``[x, y]`` per mover, makes the movers with a non-empty list
     patrols (or, with ``pedestrians=True``, pedestrians) whose cruising speed is the
-    norm of their ``(vx, vy)``; discs with an empty list stay ballistic."""
+    norm of their ``(vx, vy)``; movers with an empty list stay ballistic."""
     d = torch.as_tensor(discs if discs is not None and len(discs) else [], dtype=dtype, device=device)
     d = d.reshape(0, 5) if d.numel() == 0 else d
     if d.dim() != 2 or d.shape[1] != 5:
         raise ValueError(f"movers must have shape (M, 5) [x, y, vx, vy, radius], got {tuple(d.shape)}")
     if (d[:, 4] <= 0).any() or not torch.isfinite(d).all():
         raise ValueError("movers: radius must be > 0 and every value finite")
+    shape = None
+    if boxes is not None:
+        bx = torch.as_tensor(boxes if len(boxes) else [], dtype=dtype, device=device)
+        bx = bx.reshape(0, 7) if bx.numel() == 0 else bx
+        if bx.dim() != 2 or bx.shape[1] != 7:
+            raise ValueError(f"movers: boxes must have shape (K, 7) [x, y, vx, vy, half_x, half_y, yaw], got {tuple(bx.shape)}")
+        if (bx[:, 4:6] < 0).any() or ((bx[:, 4] == 0) & (bx[:, 5] == 0)).any() or not torch.isfinite(bx).all():
+            raise ValueError("movers: boxes need half extents >= 0, not both 0, and every value finite")
+        d = torch.cat((d, torch.cat((bx[:, :4], torch.hypot(bx[:, 4], bx[:, 5])[:, None]), 1)))
+        shape = torch.cat((d.new_zeros(d.shape[0] - bx.shape[0], 3), bx[:, 4:]))
     reg = (-math.inf, -math.inf, math.inf, math.inf) if region is None else tuple(float(v) for v in region)
     if len(reg) != 4 or not (reg[0] < reg[2] and reg[1] < reg[3]):
         raise ValueError(f"movers: region must be (xmin, ymin, xmax, ymax) with xmin < xmax and ymin < ymax, got {region!r}")
@@ -91,11 +117,11 @@ def make_movers(
         if not inside.all():
             raise ValueError(f"movers: every disc must start inside its region {reg}")
     m = d.shape[0]
-    rows = torch.cat((d, torch.tensor(reg, dtype=dtype, device=device).expand(m, 4)), 1)
+    rows = torch.cat((d, torch.tensor(reg, dtype=dtype, device=device).expand(m, 4), *(() if shape is None else (shape,))), 1)
     plan = torch.zeros(m, 0, dtype=dtype, device=device)
     if waypoints is not None:
         if len(waypoints) != m:
-            raise ValueError(f"movers: waypoints needs one list per disc ({m}), got {len(waypoints)}")
+            raise ValueError(f"movers: waypoints needs one list per mover ({m}), got {len(waypoints)}")
         p = max(1, max((len(w) for w in waypoints), default=1))
         plan = torch.zeros(m, 4 + 2 * p, dtype=dtype, device=device)
         for i, w in enumerate(waypoints):
@@ -133,12 +159,13 @@ def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy:
         return movers, plan
     cols = mover_major(movers)  # (B, M, 9) viewed from (9, M, B) storage
     x, y, vx, vy, r, xmin, ymin, xmax, ymax = (cols[..., k].t() for k in range(N_MOVER_FIELDS))  # (M, B) each
+    shape = [cols[..., k].t() for k in range(N_MOVER_FIELDS, cols.shape[-1])]  # boxes' half extents and yaw, carried
     if plan.shape[-1]:
         plan = mover_major(plan)
         (vx, vy), plan = _steer((x, y, vx, vy, r), plan, mask, dt, robot_xy, robot_radius)
     x, vx = _bounce(x + vx * dt, vx, xmin + r, xmax - r)
     y, vy = _bounce(y + vy * dt, vy, ymin + r, ymax - r)
-    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax)).permute(2, 1, 0), plan
+    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax, *shape)).permute(2, 1, 0), plan
 
 
 def is_mover_major(x: Tensor) -> bool:
@@ -213,11 +240,19 @@ def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tenso
 
 
 def mover_world(movers: Tensor, mask: Tensor) -> World:
-    """The movers as a :class:`World` of circles ``[x, y, radius]`` (no walls, no boxes)."""
+    """The movers as a :class:`World` of circles ``[x, y, radius]`` and, for rows with box columns,
+    boxes ``[x, y, half_x, half_y, yaw]`` (slot ``i`` of both kinds is mover ``i``, masked in the
+    kind it is not); no walls."""
     b = movers.shape[0]
+    circles = torch.stack((movers[..., 0], movers[..., 1], movers[..., 4]), -1)
+    boxes, box_mask, circle_mask = movers.new_zeros(b, 0, 5), mask[:, :0], mask
+    if movers.shape[-1] > N_MOVER_FIELDS:
+        hx, hy, yaw = (movers[..., N_MOVER_FIELDS + k] for k in range(3))
+        is_box = (hx > 0) | (hy > 0)
+        boxes = torch.stack((movers[..., 0], movers[..., 1], hx, hy, yaw), -1)
+        box_mask, circle_mask = mask & is_box, mask & ~is_box
     return World(
         segments=movers.new_zeros(b, 0, 4), segment_mask=mask[:, :0],
-        circles=torch.stack((movers[..., 0], movers[..., 1], movers[..., 4]), -1), circle_mask=mask,
-        boxes=movers.new_zeros(b, 0, 5), box_mask=mask[:, :0],
+        circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask,
         batch_size=[b], device=movers.device,
     )

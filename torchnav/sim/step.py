@@ -133,7 +133,7 @@ def init_state(
     """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
     scan, clearance and camera depth already computed. Odometry starts at the true pose; the
     IMU reads zero with zero bias. ``movers`` is a :class:`~torchnav.sim.movers.Movers`
-    (``make_movers``), or a pair ``(rows (B, M, 9), mask (B, M))`` of ballistic movers;
+    (``make_movers``), or a pair ``(rows (B, M, 9 or 12), mask (B, M))`` of ballistic movers;
     ``None`` means no moving obstacles. ``env_params`` (``randomize.py``) gives per-env
     radius and lidar imperfections for the first scan and clearance; ``delay_steps`` is the
     length of the command queue of the actuator delay (the longest delay), filled with
@@ -153,8 +153,8 @@ def init_state(
     rows, mask, plan = movers
     if plan.dim() != 3 or plan.shape[:2] != rows.shape[:2] or (plan.shape[2] and (plan.shape[2] < 6 or plan.shape[2] % 2)):
         raise ValueError(f"movers.plan must be ({b}, M, 4 + 2P) with P >= 1, or ({b}, M, 0), got {tuple(plan.shape)}")
-    if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] != 9 or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
-        raise ValueError(f"movers must be a ({b}, M, 9) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}")
+    if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] not in (9, 12) or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
+        raise ValueError(f"movers must be a ({b}, M, 9) (or, with boxes, ({b}, M, 12)) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}")
     if rows.dtype != pose.dtype or rows.device != pose.device:
         raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device}")
     if plan.numel() == 0:  # canonical strides for an empty plan (an expanded one would make torch.compile recompile)

@@ -161,7 +161,8 @@ class WorldsConfig:
     anywhere_goals: float = 0.0  # fraction of episodes whose goal is anywhere reachable (>= 0.5 m), not in the difficulty's band
     below_level: float = 0.0  # fraction of episodes whose difficulty is drawn uniformly below their family's level, in [0, level)
     # Moving discs placed in every generated world at reset, as a map's `moving_circles` (docs/worlds.md)
-    # without `region`: they move inside each world's bounds. Empty: none.
+    # without `region`: they move inside each world's bounds; with `size_x` and `size_y` instead of
+    # `radius`, moving boxes (a map's `moving_boxes`). Empty: none.
     movers: dict[str, Any] = field(default_factory=dict)
 
     def mover_spec(self):
@@ -180,7 +181,8 @@ class WorldsConfig:
             raise ConfigError(f"worlds.movers: expected a mapping like a map's moving_circles, got {self.movers!r}")
         if "region" in self.movers:
             raise ConfigError("worlds.movers.region: not allowed: movers move inside each generated world's bounds")
-        return _moving_circles(KeyCtx("", ConfigError), dict(self.movers), (math.inf, math.inf), "worlds.movers")
+        return _moving_circles(KeyCtx("", ConfigError), dict(self.movers), (math.inf, math.inf), "worlds.movers",
+                               boxes="size_x" in self.movers or "size_y" in self.movers)
 
 
 @dataclass(frozen=True)

@@ -216,7 +216,8 @@ def place_movers(
     world: World, spec: MapSpec | MoverSource, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> Movers:
-    """The map's ``moving_circles`` for a batch ``n`` of episodes (``movers (n, M, 9)``, ``mask (n, M)``, ``plan``).
+    """The map's ``moving_circles`` for a batch ``n`` of episodes (``movers (n, M, 9)``, or ``(n, M, 12)``
+    for ``moving_boxes``, ``mask (n, M)``, ``plan``).
 
     Positions are placed like random circles (:func:`place_random_objects`: ``clearance`` from
     the start and the goal, ``margin`` from every obstacle of ``world``, including this
@@ -238,6 +239,11 @@ def place_movers(
     box = (-math.inf, -math.inf, math.inf, math.inf) if mc.motion == "constant" else region
     box = torch.stack([torch.as_tensor(e, dtype=like.dtype, device=like.device).reshape(-1, 1).expand(n, mc.count) for e in box], -1)
     rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3], box), -1)
+    if mc.size_x is not None:  # moving boxes, placed by the largest box's bounding circle
+        hx, hy = (0.5 * _uniform((n, mc.count), lo, hi, gen, like) for lo, hi in (mc.size_x, mc.size_y))
+        yaw = _uniform((n, mc.count), mc.yaw[0], mc.yaw[1], gen, like)
+        rows = torch.cat((rows[..., :4], torch.hypot(hx, hy)[..., None], rows[..., 5:], torch.stack((hx, hy, yaw), -1)), -1)
+        disc = torch.cat((disc[..., :2], rows[..., 4:5]), -1)  # waypoints keep each box's own bounding circle inside the region
     plan = like.new_zeros(n, mc.count, 0)
     if mc.motion in ("patrol", "pedestrian"):
         p, r = mc.waypoints, disc[..., 2:3]

@@ -1,0 +1,155 @@
+"""Moving boxes: lidar, camera and collision against closed forms; their motion and validation."""
+
+import math
+
+import pytest
+import torch
+
+from torchnav.sim import CameraParams, LidarParams, SimParams, init_state, make_movers, make_world, mover_world, step
+
+
+def _drive(params, movers, n, b=1):
+    world = make_world(b)
+    state = init_state(torch.zeros(b, 3), world, params, movers=movers)
+    states = [state]
+    for _ in range(n):
+        state = step(state, torch.zeros(b, 2), world, params)
+        states.append(state)
+    return states
+
+
+def test_moving_box_lidar_and_camera_return_match_geometry():
+    """A 1 x 0.6 m box sliding across the ray along +x: the ray reads its near face while the
+    box covers y = 0, the camera's middle columns the same depth, then both miss."""
+    hx, hy, vy, dt = 0.5, 0.3, 0.2, 0.1
+    lidar = LidarParams(n_rays=360, fov=2 * math.pi, max_range=20.0)
+    cam = CameraParams(n_cols=1, fov=0.02, max_range=20.0)  # one column, along the axis
+    params = SimParams(dt=dt, lidar=lidar, camera=cam)
+    movers = make_movers(1, boxes=[[4.0, -0.5, 0.0, vy, hx, hy, 0.0]])
+    assert movers.rows.shape == (1, 1, 12)
+    ahead = lidar.n_rays // 2
+    for k, s in enumerate(_drive(params, movers, 30)):
+        cy = -0.5 + vy * dt * k
+        assert s.movers[0, 0, 1].item() == pytest.approx(cy, abs=1e-5)
+        covers = abs(cy) < hy - 1e-4
+        want = 4.0 - hx if covers else lidar.max_range
+        if covers or abs(cy) > hy + 1e-4:  # not grazing an edge
+            assert s.ranges[0, ahead].item() == pytest.approx(want, abs=1e-4)
+            assert s.cam_depth[0, 0].item() == pytest.approx(want, abs=1e-4)
+        # Clearance: the nearest point of the box is on its near face (or its corner).
+        dy = max(abs(cy) - hy, 0.0)
+        assert s.clearance[0].item() == pytest.approx(math.hypot(4.0 - hx, dy) - params.robot_radius, abs=1e-5)
+
+
+def test_rotated_moving_box_lidar_hits_its_corner():
+    """A square box turned 45 degrees shows the ray along +x its corner at ``x - h sqrt(2)``."""
+    h = 0.4
+    params = SimParams(lidar=LidarParams(n_rays=360, fov=2 * math.pi, max_range=20.0))
+    movers = make_movers(1, boxes=[[3.0, 0.0, 0.5, 0.0, h, h, math.pi / 4]])
+    for k, s in enumerate(_drive(params, movers, 5)):
+        assert s.ranges[0, 180].item() == pytest.approx(3.0 + 0.05 * k - h * math.sqrt(2), abs=1e-4)
+
+
+def test_moving_box_collides_with_robot():
+    """A box of half length 0.3 m driving at the robot at 1 m/s touches the 0.2 m robot when its
+    centre reaches 0.5 m: after 15 steps of 0.1 s from 2 m."""
+    params = SimParams(dt=0.1)
+    movers = make_movers(1, boxes=[[2.0, 0.0, -1.0, 0.0, 0.3, 0.6, 0.0]])
+    states = _drive(params, movers, 20)
+    hit = [k for k, s in enumerate(states) if s.collided[0]]
+    assert hit and hit[0] == 15
+    assert states[14].clearance[0].item() == pytest.approx(0.1, abs=1e-5)
+
+
+def test_moving_boxes_bounce_inside_their_region_and_keep_shape():
+    movers = make_movers(2, [[0.0, 0.0, 0.7, -0.4, 0.2]], region=(-2.0, -1.5, 2.0, 1.5),
+                         boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
+    start = movers.rows.clone()
+    states = _drive(SimParams(), movers, 100, b=2)
+    for s in states:
+        x, y, r = s.movers[..., 0], s.movers[..., 1], s.movers[..., 4]
+        assert (x - r >= -2.0 - 1e-5).all() and (x + r <= 2.0 + 1e-5).all()
+        assert (y - r >= -1.5 - 1e-5).all() and (y + r <= 1.5 + 1e-5).all()
+        assert torch.equal(s.movers[..., 9:], start[..., 9:])  # half extents and yaw are carried
+    assert s.movers[0, 1, 4].item() == pytest.approx(math.hypot(0.3, 0.2))
+    world = mover_world(s.movers, s.mover_mask)
+    assert world.circle_mask.tolist() == [[True, False]] * 2 and world.box_mask.tolist() == [[False, True]] * 2
+
+
+def test_make_movers_rejects_bad_boxes():
+    with pytest.raises(ValueError, match="shape"):
+        make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, 0.5]])
+    with pytest.raises(ValueError, match="half extents"):
+        make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="half extents"):
+        make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, -0.1, 0.3, 0.0]])
+
+
+# -- moving boxes in maps and the task ------------------------------------------------------
+
+BOX_MAP = """
+name: moving_boxes
+size: [10.0, 10.0]
+walls: boundary
+moving_boxes: {count: 3, size_x: [0.4, 0.8], size_y: [0.2, 0.4], speed: [0.2, 0.5], motion: pedestrian, clearance: 1.5, margin: 0.1}
+"""
+
+
+def _env_on(tmp_path, text: str, **kw):
+    from torchnav.envs import make_env
+
+    (tmp_path / "map.yaml").write_text(text)
+    return make_env(str(tmp_path / "map.yaml"), **kw)
+
+
+def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
+    from torchnav.sim import points_clearance
+
+    env = _env_on(tmp_path, BOX_MAP, num_envs=256, seed=4)
+    env.reset()
+    s = env._state
+    m, mask = s.sim.movers, s.sim.mover_mask
+    assert m.shape == (256, 3, 12) and mask.float().mean() > 0.99
+    hx, hy, r = m[..., 9], m[..., 10], m[..., 4]
+    assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6))[mask].all()
+    assert torch.allclose(r, torch.hypot(hx, hy))
+    # Placed by the largest box's bounding circle: its clearance from the start, the goal and the walls holds for every box.
+    for far_from in (s.start[:, :2], s.goal):
+        assert ((m[..., :2] - far_from[:, None]).norm(dim=-1) - r)[mask].min() >= 1.5 - 1e-4
+    assert (points_clearance(m[..., :2], s.world) - r)[mask].min() >= 0.1 - 1e-4
+    assert (s.sim.clearance > 0).all()
+    for _ in range(3):
+        env.rand_step()
+    assert env._state.sim.movers.shape == (256, 3, 12) and torch.equal(env._state.sim.movers[..., 9:], m[..., 9:])
+
+
+def test_map_rejects_bad_moving_boxes():
+    from torchnav.maps import MapError, parse_map
+
+    base = {"size": [10.0, 10.0], "walls": ["boundary"]}
+    good = {"count": 2, "size_x": [0.2, 0.4], "size_y": [0.2, 0.3], "speed": [0.1, 0.2]}
+    for bad, key in (({**good, "radius": [0.2, 0.3]}, "moving_boxes.radius"), ({k: v for k, v in good.items() if k != "size_y"}, "moving_boxes.size_y"),
+                     ({**good, "size_x": [0.4, 0.2]}, "moving_boxes.size_x"), ({**good, "size_x": [0.2, 40.0]}, "moving_boxes.size_x")):
+        with pytest.raises(MapError, match=key):
+            parse_map({**base, "moving_boxes": bad})
+    with pytest.raises(MapError, match="not both"):
+        parse_map({**base, "moving_boxes": good, "moving_circles": {"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2]}})
+    spec = parse_map({**base, "moving_boxes": {**good, "yaw": [0.0, 0.5]}})
+    assert spec.moving_circles.size_x == (0.2, 0.4) and spec.moving_circles.yaw == (0.0, 0.5)
+    assert spec.moving_circles.radius == pytest.approx((0.5 * math.hypot(0.4, 0.3),) * 2)
+
+
+def test_generated_worlds_take_moving_boxes_from_worlds_movers():
+    from torchnav.config import ConfigError
+    from torchnav.envs import NavEnv
+    from torchnav.tasks import NavConfig
+
+    movers = {"count": 2, "size_x": [0.4, 0.6], "size_y": [0.3, 0.5], "speed": [0.2, 0.4]}
+    cfg = NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "difficulty": 0.3, "movers": movers}, "max_steps": 50})
+    env = NavEnv(cfg, num_envs=8, seed=1)
+    env.reset()
+    m, mask = env.state.sim.movers, env.state.sim.mover_mask
+    assert m.shape == (8, 2, 12) and mask.any()
+    assert ((m[..., 9] >= 0.2 - 1e-6) & (m[..., 9] <= 0.3 + 1e-6))[mask].all()
+    with pytest.raises(ConfigError, match=r"worlds\.movers\.size_y"):
+        NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "movers": {**movers, "size_y": [0.5, 0.3]}}}).worlds.mover_spec()
