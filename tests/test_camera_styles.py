@@ -74,7 +74,7 @@ def test_recorded_camera_images_use_the_map_styles(tmp_path):
     import numpy as np
     from mcap.reader import make_reader
 
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
     from torchnav.record import EpisodeRecorder, JsonDecoderFactory, record_rollout
 
     style = "height: 1.0, color: [0, 255, 0]"
@@ -87,7 +87,7 @@ boxes:
   - {{center: [-2.8, 0.0], size: [0.4, 5.2], {style}}}
   - {{center: [2.8, 0.0], size: [0.4, 5.2], {style}}}
 """)
-    env = make_env(str(path), num_envs=2, max_steps=20, camera={"enabled": True, "n_cols": 16, "n_rows": 9})
+    env = make_nav_env(str(path), num_envs=2, max_steps=20, camera={"enabled": True, "n_cols": 16, "n_rows": 9})
     out = tmp_path / "green.mcap"
     with EpisodeRecorder(out, env, envs=(0,)) as rec:
         record_rollout(env, None, 3, rec)

@@ -96,10 +96,10 @@ moving_boxes: {count: 3, size_x: [0.4, 0.8], size_y: [0.2, 0.4], speed: [0.2, 0.
 
 
 def _env_on(tmp_path, text: str, **kw):
-    from torchnav.envs import make_env
+    from torchnav.envs import make_nav_env
 
     (tmp_path / "map.yaml").write_text(text)
-    return make_env(str(tmp_path / "map.yaml"), **kw)
+    return make_nav_env(str(tmp_path / "map.yaml"), **kw)
 
 
 def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
