@@ -240,8 +240,8 @@ def place_movers(
     box = torch.stack([torch.as_tensor(e, dtype=like.dtype, device=like.device).reshape(-1, 1).expand(n, mc.count) for e in box], -1)
     rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3], box), -1)
     if mc.size_x is not None:  # moving boxes, placed by the largest box's bounding circle
-        hx, hy = (0.5 * _uniform((n, mc.count), lo, hi, gen, like) for lo, hi in (mc.size_x, mc.size_y))
-        yaw = _uniform((n, mc.count), mc.yaw[0], mc.yaw[1], gen, like)
+        hx, hy = (0.5 * uniform(lo, hi, (n, mc.count), generator, like) for lo, hi in (mc.size_x, mc.size_y))
+        yaw = uniform(mc.yaw[0], mc.yaw[1], (n, mc.count), generator, like)
         rows = torch.cat((rows[..., :4], torch.hypot(hx, hy)[..., None], rows[..., 5:], torch.stack((hx, hy, yaw), -1)), -1)
         disc = torch.cat((disc[..., :2], rows[..., 4:5]), -1)  # waypoints keep each box's own bounding circle inside the region
     plan = like.new_zeros(n, mc.count, 0)
