@@ -30,3 +30,5 @@ def test_gen_keyword_is_generator_with_a_warning():
     with pytest.warns(DeprecationWarning, match="generator="):
         a = line.start_poses(3, gen=torch.Generator().manual_seed(1))[0]
     assert torch.equal(a, line.start_poses(3, torch.Generator().manual_seed(1))[0])
+    with pytest.raises(TypeError, match="both gen= .* and generator="):  # never one of them silently dropped
+        line.start_poses(3, gen=torch.Generator(), generator=torch.Generator())

@@ -41,6 +41,8 @@ def renamed_keywords(**old_to_new: str) -> Callable[[Callable], Callable]:
         def call(*args: Any, **kwargs: Any) -> Any:
             for old, new in old_to_new.items():
                 if old in kwargs:
+                    if new in kwargs:
+                        raise TypeError(f"{fn.__qualname__}() got both {old}= (its deprecated name) and {new}=")
                     _warn(f"{fn.__qualname__}({old}=...)", f"{new}=")
                     kwargs[new] = kwargs.pop(old)
             return fn(*args, **kwargs)
