@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from torchnav.config import ConfigError, from_dict, merge, to_dict
+from torchnav.config import ConfigError, TaskConfig, from_dict, merge, to_dict
 from torchnav.tasks import NavConfig
 from torchnav.tasks.config import CurriculumConfig, LidarConfig, RobotConfig
 
@@ -108,6 +108,20 @@ def test_config_is_frozen():
     cfg = NavConfig()
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.max_steps = 3  # type: ignore[misc]
+
+
+def test_task_config_sections_default_to_their_own_defaults():
+    @dataclasses.dataclass(frozen=True)
+    class Toy(TaskConfig):
+        steps: int = 3
+        robot: RobotConfig  # a section: no default written, RobotConfig() is its default
+        lidar: LidarConfig = LidarConfig(n_rays=40)  # an explicit default wins
+
+    a, b = Toy(), Toy()
+    assert a.robot == RobotConfig() and a.lidar.n_rays == 40
+    assert a.robot is not b.robot  # a fresh section per config
+    assert Toy.from_dict({"robot": {"dt": 0.05}}).robot.dt == 0.05
+    assert NavConfig().robot == RobotConfig() and NavConfig().curriculum == CurriculumConfig()
 
 
 # --------------------------------------------------------------------------- to_dict, merge, YAML

@@ -192,7 +192,16 @@ C = TypeVar("C", bound="TaskConfig")
 
 class TaskConfig:
     """The base of the task configs (``NavConfig``, ``LineConfig``): strict construction from a
-    dict, and the checks of their ``__post_init__``."""
+    dict, the checks of their ``__post_init__``, and section defaults: a field annotated with a
+    config dataclass and given no default (``robot: RobotConfig``) defaults to that dataclass's
+    defaults."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        hints = typing.get_type_hints(cls)
+        for name in cls.__dict__.get("__annotations__", {}):
+            if dataclasses.is_dataclass(hints[name]) and name not in cls.__dict__:
+                setattr(cls, name, dataclasses.field(default_factory=hints[name]))
 
     @classmethod
     def from_dict(cls: type[C], data: Mapping[str, Any] | None = None, where: str = "env") -> C:

@@ -191,17 +191,17 @@ class NavConfig(TaskConfig):
     max_steps: int = 500  # steps before truncation
     goal_tolerance: float = 0.3  # m, success when the robot centre is this close to the goal
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
-    robot: RobotConfig = field(default_factory=RobotConfig)
-    lidar: LidarConfig = field(default_factory=LidarConfig)
-    imu: ImuConfig = field(default_factory=ImuConfig)
-    camera: CameraConfig = field(default_factory=CameraConfig)
-    randomize: RandomizeConfig = field(default_factory=RandomizeConfig)
-    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
-    reward: RewardConfig = field(default_factory=RewardConfig)
-    observation: ObservationConfig = field(default_factory=ObservationConfig)
-    action: ActionConfig = field(default_factory=ActionConfig)
-    reset: ResetConfig = field(default_factory=ResetConfig)
-    worlds: WorldsConfig = field(default_factory=WorldsConfig)
+    robot: RobotConfig
+    lidar: LidarConfig
+    imu: ImuConfig
+    camera: CameraConfig
+    randomize: RandomizeConfig
+    curriculum: CurriculumConfig
+    reward: RewardConfig
+    observation: ObservationConfig
+    action: ActionConfig
+    reset: ResetConfig
+    worlds: WorldsConfig
 
     def __post_init__(self) -> None:
         c = self.curriculum

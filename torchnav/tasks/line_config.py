@@ -95,14 +95,14 @@ class LineConfig(TaskConfig):
     track: str = "course"  # shipped track (course, loop, oval) or path to a track YAML
     max_steps: int = 1000  # steps before truncation (50 s at dt = 0.05)
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
-    robot: LineRobotConfig = field(default_factory=LineRobotConfig)
-    sensors: LineSensorConfig = field(default_factory=LineSensorConfig)
-    distance_sensor: DistanceSensorConfig = field(default_factory=DistanceSensorConfig)
-    reward: LineRewardConfig = field(default_factory=LineRewardConfig)
-    observation: LineObservationConfig = field(default_factory=LineObservationConfig)
-    action: LineActionConfig = field(default_factory=LineActionConfig)
-    termination: LineTerminationConfig = field(default_factory=LineTerminationConfig)
-    reset: LineResetConfig = field(default_factory=LineResetConfig)
+    robot: LineRobotConfig
+    sensors: LineSensorConfig
+    distance_sensor: DistanceSensorConfig
+    reward: LineRewardConfig
+    observation: LineObservationConfig
+    action: LineActionConfig
+    termination: LineTerminationConfig
+    reset: LineResetConfig
 
     def __post_init__(self) -> None:
         t, a = self.termination, self.action
