@@ -147,49 +147,24 @@ def draw_goal(
     return ax
 
 
-def _example_random_objects(spec: MapSpec, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """One illustrative layout of a map's random objects: ``(circles (C, 3), boxes (K, 5))``.
+def _example_random_objects(spec: MapSpec, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``n`` layouts of a map's random objects, ``(circles (C, 3), boxes (K, 5))`` each, drawn by the
+    task's reset sampler with no start or goal (a picture has none), so only ``margin`` applies."""
+    import torch
 
-    A plain rejection sampler on bounding circles that honours ``margin`` but not
-    ``clearance`` (a picture has no start or goal). The task's reset sampler
-    is the one that matters for training; this only shows sizes and counts.
-    """
-    from torchnav.maps.free_space import obstacle_distance
+    from .tasks.sampling import place_random_objects
 
-    xmin, ymin, xmax, ymax = spec.bounds
-    placed: list[tuple[float, float, float]] = []  # bounding circles of accepted objects
-    circles, boxes = [], []
-    wanted = []
-    if spec.random_boxes:
-        wanted += [("box", spec.random_boxes)] * spec.random_boxes.count
-    if spec.random_circles:
-        wanted += [("circle", spec.random_circles)] * spec.random_circles.count
-    for kind, cfg in wanted:
-        if kind == "box":
-            hx, hy = rng.uniform(*cfg.size_x) / 2, rng.uniform(*cfg.size_y) / 2
-            yaw, r_bound = rng.uniform(*cfg.yaw), math.hypot(hx, hy)
-        else:
-            r_bound = rng.uniform(*cfg.radius)
-        for _ in range(2000):
-            p = rng.uniform([xmin + r_bound, ymin + r_bound], [xmax - r_bound, ymax - r_bound])
-            if obstacle_distance(spec, p[None])[0] < r_bound + cfg.margin:
-                continue
-            if any(math.hypot(p[0] - q[0], p[1] - q[1]) < r_bound + q[2] + cfg.margin for q in placed):
-                continue
-            placed.append((p[0], p[1], r_bound))
-            if kind == "box":
-                boxes.append((p[0], p[1], hx, hy, yaw))
-            else:
-                circles.append((p[0], p[1], r_bound))
-            break
-    return np.asarray(circles).reshape(-1, 3), np.asarray(boxes).reshape(-1, 5)
+    far = torch.full((n, 2), 1e6)
+    w = place_random_objects(spec.build_world(n), spec, far, far, 32, torch.Generator().manual_seed(seed))
+    c0, b0 = spec.n_fixed_circles, spec.n_fixed_boxes
+    return [(_np(w.circles[i, c0:])[_np(w.circle_mask[i, c0:])], _np(w.boxes[i, b0:])[_np(w.box_mask[i, b0:])]) for i in range(n)]
 
 
 def plot_map(spec: MapSpec, ax: Axes | None = None, n_samples: int = 0, seed: int = 0) -> Axes:
     """Draw a map's fixed obstacles, with the random-object counts in the title.
 
     With ``n_samples > 0`` also draws that many example layouts of the random
-    objects (dashed, orange; see :func:`_example_random_objects`). Without an
+    objects (dashed, orange), as the reset sampler places them. Without an
     ``ax`` a new pyplot-free Figure is made; reach it as ``ax.figure``.
     """
     if ax is None:
@@ -198,9 +173,7 @@ def plot_map(spec: MapSpec, ax: Axes | None = None, n_samples: int = 0, seed: in
         w, h = spec.size
         ax = Figure(figsize=(5.0, 5.0 * h / w + 0.4)).add_subplot()
     draw_obstacles(ax, spec.segments, spec.circles, spec.boxes)
-    rng = np.random.default_rng(seed)
-    for _ in range(n_samples):
-        c, b = _example_random_objects(spec, rng)
+    for c, b in _example_random_objects(spec, n_samples, seed) if n_samples > 0 else ():
         draw_obstacles(ax, (), c, b, color=RANDOM_COLOR, edgecolor=RANDOM_COLOR, linestyle="--", alpha=0.6)
     xmin, ymin, xmax, ymax = spec.bounds
     pad = 0.02 * max(xmax - xmin, ymax - ymin)
