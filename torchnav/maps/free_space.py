@@ -2,8 +2,8 @@
 
 Built on the simulator's geometry (``torchnav.sim.points_clearance``, in float64);
 this is for map authors, planners and tests: "can a robot of radius r
-get from anywhere to anywhere in this map?", and for placing illustrative
-objects in pictures. Only the fixed obstacles of a :class:`MapSpec` are used.
+get from anywhere to anywhere in this map?". Only the fixed obstacles of a
+:class:`MapSpec` are used.
 """
 
 from __future__ import annotations
