@@ -13,7 +13,6 @@ from typing import Any
 import torch
 from torchrl.data import Bounded
 
-from ..config import merge, to_dict
 from ..tasks.line import LineState, LineTask
 from ..tasks.line_config import LineConfig
 from .base import BatchedEnv
@@ -85,5 +84,5 @@ def make_line_env(track: str = "course", num_envs: int = 64, device: torch.devic
     Example: ``make_line_env("oval", 256, action={"mode": "discrete"}, sensors={"noise_std": 0.05})``.
     Unknown keys raise a ConfigError naming the key.
     """
-    cfg = LineConfig.from_dict(merge(to_dict(LineConfig()), {"track": track, **overrides}))
+    cfg = LineConfig.from_dict({"track": track, **overrides})
     return LineEnv(cfg, num_envs=num_envs, device=device, seed=seed)

@@ -13,7 +13,6 @@ from typing import Any
 import torch
 from torchrl.data import Bounded, Unbounded
 
-from ..config import merge, to_dict
 from ..deprecation import renamed_function
 from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes, after_family_episodes
 from .base import BatchedEnv
@@ -97,7 +96,7 @@ def make_nav_env(map: str = "arena", num_envs: int = 64, device: torch.device | 
     Example: ``make_nav_env("warehouse", 256, curriculum={"growth": 0.01}, reward={"preset": "shaped"})``.
     Unknown keys raise a ConfigError naming the key.
     """
-    cfg = NavConfig.from_dict(merge(to_dict(NavConfig()), {"map": map, **overrides}))
+    cfg = NavConfig.from_dict({"map": map, **overrides})
     return NavEnv(cfg, num_envs=num_envs, device=device, seed=seed)
 
 

@@ -281,11 +281,7 @@ class EpisodeRecorder:
             td = td.unsqueeze(-1)
         states = list(states) if states is not None else [None] * td.shape[1]
         for t in range(td.shape[1]):
-            if not self.enabled or self.finished:
-                break
-            self._buffer.append(self._select(td[:, t], states[t]))
-            if len(self._buffer) >= self.flush_steps:
-                self._drain()
+            self.write_step(td[:, t], states[t])
         self._drain()
 
     def flush(self) -> None:
