@@ -51,11 +51,17 @@ def _rows(a: np.ndarray, mask: np.ndarray) -> list[list[float]]:
 
 def line_list(segments: Any, thickness: float, rgba: tuple[float, float, float, float], z: float = 0.001) -> dict:
     """A Foxglove LinePrimitive (LINE_LIST) drawing segments ``(S, 4)`` ``[x1, y1, x2, y2]`` (m) on the floor."""
-    seg = np.round(np.asarray(segments, dtype=np.float64).reshape(-1, 4), 5).tolist()
+    seg = np.round(np.asarray(segments, dtype=np.float64).reshape(-1, 4), 6).tolist()
     pts = [{"x": x, "y": y, "z": z} for s in seg for x, y in ((s[0], s[1]), (s[2], s[3]))]
     r, g, b, a = rgba
     return {"type": 2, "pose": pose(0.0, 0.0), "thickness": float(thickness), "scale_invariant": False, "points": pts,
             "color": {"r": r, "g": g, "b": b, "a": a}, "colors": [], "indices": []}
+
+
+def cylinder(x: float, y: float, diameter: float, height: float, name: str, yaw: float = 0.0) -> dict:
+    """A Foxglove CylinderPrimitive standing on the floor, coloured ``COLORS[name]``."""
+    return {"pose": pose(x, y, yaw, height / 2), "size": {"x": diameter, "y": diameter, "z": height},
+            "bottom_scale": 1.0, "top_scale": 1.0, "color": color(name)}
 
 
 def entity(ns: int, frame: str, ident: str, **prims: list) -> dict:
@@ -155,14 +161,12 @@ class EnvStream:
         self.in_episode = True
         self.ep_step, self.ep_return = 0, 0.0
         self.goal = (float(r["goal"][0]), float(r["goal"][1]))
-        if "segments" in r:
-            world = {k: r[k] for k in ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask")}
-            fixed_only = False
+        keys = ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask")
+        fixed_only = "segments" not in r
+        if fixed_only:
+            world = {k: getattr(self.base_world, k)[self.env].detach().cpu().numpy() for k in keys}
         else:
-            bw = self.base_world
-            world = {k: getattr(bw, k)[self.env].detach().cpu().numpy() for k in
-                     ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask")}
-            fixed_only = True
+            world = {k: r[k] for k in keys}
         seg = _rows(world["segments"], world["segment_mask"])
         cir = _rows(world["circles"], world["circle_mask"])
         box = _rows(world["boxes"], world["box_mask"])
@@ -180,23 +184,15 @@ class EnvStream:
 
     def _static_entities(self, seg: list, cir: list, box: list) -> list[dict]:
         t = self.t
-        pts = [{"x": x, "y": y, "z": 0.0} for s in seg for x, y in ((s[0], s[1]), (s[2], s[3]))]
-        walls = {"type": 2, "pose": pose(0.0, 0.0), "thickness": 0.05, "scale_invariant": False, "points": pts,
-                 "color": color("wall"), "colors": [], "indices": []}
         cubes = [{"pose": pose(b[0], b[1], b[4], WALL_HEIGHT / 2), "size": {"x": 2 * b[2], "y": 2 * b[3], "z": WALL_HEIGHT},
                   "color": color("box")} for b in box]
-        cyls = [{"pose": pose(c[0], c[1], 0.0, WALL_HEIGHT / 2), "size": {"x": 2 * c[2], "y": 2 * c[2], "z": WALL_HEIGHT},
-                 "bottom_scale": 1.0, "top_scale": 1.0, "color": color("circle")} for c in cir]
-        gx, gy = self.goal
-        goal = {"pose": pose(gx, gy, 0.0, 0.01), "size": {"x": 2 * self.goal_tol, "y": 2 * self.goal_tol, "z": 0.02},
-                "bottom_scale": 1.0, "top_scale": 1.0, "color": color("goal")}
         out = [
-            entity(t, self.frame, "walls", lines=[walls] if pts else []),
+            entity(t, self.frame, "walls", lines=[line_list(seg, 0.05, COLORS["wall"], z=0.0)] if seg else []),
             entity(t, self.frame, "boxes", cubes=cubes),
-            entity(t, self.frame, "circles", cylinders=cyls),
+            entity(t, self.frame, "circles", cylinders=[cylinder(c[0], c[1], 2 * c[2], WALL_HEIGHT, "circle") for c in cir]),
         ]
         if self.rec.optional["goal"]:
-            out.append(entity(t, self.frame, "goal", cylinders=[goal]))
+            out.append(entity(t, self.frame, "goal", cylinders=[cylinder(*self.goal, 2 * self.goal_tol, 0.02, "goal")]))
         for name, spec in self.rec.scene_lines.items():
             out.append(entity(t, self.frame, name, lines=[line_list(spec["segments"], spec["thickness"], spec["color"])]))
         return out
@@ -240,9 +236,7 @@ class EnvStream:
             self.trail.append(f'{{"x":{x},"y":{y},"z":0.02}}')
             if len(self.trail) > self.MAX_TRAIL:
                 self.trail, self.trail_stride = self.trail[::2], self.trail_stride * 2
-        robot = entity(self.t, self.frame, "robot", cylinders=[{
-            "pose": pose(x, y, yaw, ROBOT_HEIGHT / 2), "size": {"x": 2 * self.radius, "y": 2 * self.radius, "z": ROBOT_HEIGHT},
-            "bottom_scale": 1.0, "top_scale": 1.0, "color": color("robot")}], arrows=[{
+        robot = entity(self.t, self.frame, "robot", cylinders=[cylinder(x, y, 2 * self.radius, ROBOT_HEIGHT, "robot", yaw)], arrows=[{
             "pose": pose(x, y, yaw, ROBOT_HEIGHT + 0.01), "shaft_length": self.radius, "shaft_diameter": 0.04,
             "head_length": 0.1, "head_diameter": 0.1, "color": color("arrow")}])
         last = f'{{"x":{x},"y":{y},"z":0.02}}'
@@ -256,17 +250,13 @@ class EnvStream:
                 "shaft_diameter": 0.03, "head_length": 0.08, "head_diameter": 0.08, "color": color("estimate")}]))
         if movers is not None:  # moving discs, redrawn every step
             extra += "," + json.dumps(entity(self.t, self.frame, "movers", cylinders=[
-                {"pose": pose(c[0], c[1], 0.0, MOVER_HEIGHT / 2), "size": {"x": 2 * c[4], "y": 2 * c[4], "z": MOVER_HEIGHT},
-                 "bottom_scale": 1.0, "top_scale": 1.0, "color": color("mover")} for c in _rows(movers, movers[:, 5] > 0.5)]))
+                cylinder(c[0], c[1], 2 * c[4], MOVER_HEIGHT, "mover") for c in _rows(movers, movers[:, 5] > 0.5)]))
         self._add("scene", '{"deletions":[],"entities":[' + self.static + "," + json.dumps(robot) + "," + trail + extra + "]}")
-        lin = {"x": _f(vel[0]), "y": 0.0, "z": 0.0}
-        ang = {"x": 0.0, "y": 0.0, "z": _f(vel[1])}
-        zeros = [0.0] * 36
-        self._add("odom", {"timestamp": ts, "frame_id": self.frame, "body_frame_id": self.base, "pose": pose(x, y, yaw),
-                           "linear_velocity": lin, "angular_velocity": ang, "pose_covariance": zeros,
-                           "velocity_covariance": zeros, "metadata": []})
+        def odometry(body: str, at: dict) -> dict:  # the true pose and the odometry estimate, with the applied twist
+            return {"timestamp": ts, "frame_id": self.frame, "body_frame_id": body, "pose": at,
+                    "linear_velocity": {"x": _f(vel[0]), "y": 0.0, "z": 0.0}, "angular_velocity": {"x": 0.0, "y": 0.0, "z": _f(vel[1])},
+                    "pose_covariance": [0.0] * 36, "velocity_covariance": [0.0] * 36, "metadata": []}
+
+        self._add("odom", odometry(self.base, pose(x, y, yaw)))
         if odom is not None:
-            self._add("odom_estimate", {"timestamp": ts, "frame_id": self.frame, "body_frame_id": f"{self.base}_estimate",
-                                        "pose": pose(_f(odom[0]), _f(odom[1]), _f(odom[2])), "linear_velocity": lin,
-                                        "angular_velocity": ang, "pose_covariance": zeros, "velocity_covariance": zeros,
-                                        "metadata": []})
+            self._add("odom_estimate", odometry(f"{self.base}_estimate", pose(_f(odom[0]), _f(odom[1]), _f(odom[2]))))
