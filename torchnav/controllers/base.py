@@ -15,7 +15,6 @@ from tensordict.nn import TensorDictModuleBase
 from torch import Tensor
 
 from ..config import ConfigError, from_dict
-from ..sim import wrap_angle
 from ..tasks import NavConfig
 
 
@@ -66,12 +65,6 @@ class Controller(TensorDictModuleBase):
         return self
 
     # -- helpers for subclasses ----------------------------------------------------------
-
-    @staticmethod
-    def goal_polar(pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
-        """Distance (m) and bearing (rad, robot frame, CCW, in [-pi, pi)) to ``goal``, each ``(B,)``."""
-        dx, dy = goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1]
-        return torch.hypot(dx, dy), wrap_angle(torch.atan2(dy, dx) - pose[:, 2])
 
     def ray_angles(self, ref: Tensor) -> Tensor:
         """Robot-frame angles ``(R,)`` in rad of the lidar rays (sensor yaw included)."""

@@ -15,7 +15,7 @@ from tensordict import TensorDictBase
 from torch import Tensor
 
 from ..config import ConfigError
-from ..tasks import NavConfig
+from ..tasks import NavConfig, NavTask
 from .base import Controller, check_positive, parse_gains
 
 
@@ -39,7 +39,7 @@ class GoToGoal(Controller):
 
     def twist(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
         g = self.gains
-        dist, bearing = self.goal_polar(td.get("pose"), td.get("goal"))
+        dist, bearing = NavTask.goal_vector(td.get("pose"), td.get("goal"))
         return self.heading_speed(dist, bearing, g.k_v, g.k_omega, g.turn_in_place)
 
 
@@ -87,7 +87,7 @@ class Reactive(Controller):
     def twist(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
         g = self.gains
         pose, ranges = td.get("pose"), td.get("ranges")
-        dist, bearing = self.goal_polar(pose, td.get("goal"))
+        dist, bearing = NavTask.goal_vector(pose, td.get("goal"))
         pts = self.hit_points(ranges)
         rays = self.ray_angles(ranges).expand(ranges.shape[0], -1)  # (B, R)
         cand = torch.cat((bearing[:, None], rays), dim=1)  # (B, 1 + R)
@@ -148,7 +148,7 @@ class PotentialField(Controller):
         """Attraction and repulsion ``(B, 2)`` in the robot frame, and the goal distance ``(B,)`` m."""
         g = self.gains
         pose, ranges = td.get("pose"), td.get("ranges")
-        dist, bearing = self.goal_polar(pose, td.get("goal"))
+        dist, bearing = NavTask.goal_vector(pose, td.get("goal"))
         pull = g.k_att * torch.clamp(dist, max=g.att_distance)
         att = torch.stack((pull * torch.cos(bearing), pull * torch.sin(bearing)), dim=-1)
         pts = self.hit_points(ranges)  # (B, R, 2)

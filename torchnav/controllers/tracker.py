@@ -186,15 +186,11 @@ class PlannerController(Controller):
 
     def __init__(self, gains: PlannerGains | dict | None = None, nav: NavConfig | None = None):
         super().__init__(nav)
-        if isinstance(gains, dict):
-            if gains.get("planner", self.planner) != self.planner:
-                raise ConfigError(f"{self.planner}: gains name planner {gains['planner']!r}; use the {gains['planner']!r} controller instead")
-            gains = {**gains, "planner": self.planner}
-        elif gains is None:
-            gains = {"planner": self.planner}
+        if gains is None or isinstance(gains, dict):
+            gains = {"planner": self.planner, **(gains or {})}
         self.gains = parse_gains(PlannerGains, gains, self.planner)
         if self.gains.planner != self.planner:
-            raise ConfigError(f"{self.planner}: gains.planner is {self.gains.planner!r}; use the {self.gains.planner!r} controller")
+            raise ConfigError(f"{self.planner}: gains name planner {self.gains.planner!r}; use the {self.gains.planner!r} controller instead")
         self._env = None
         self.stats = {"plans": 0, "no_path": 0, "seconds": 0.0}
 

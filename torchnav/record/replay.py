@@ -96,20 +96,15 @@ def _decode_rgb(msg: dict) -> np.ndarray:
 
 def scene_lines(rec: Recording, ep: Episode) -> dict[str, dict]:
     """Static line entities of the episode's first ``/env{i}/scene`` other than walls and trail (e.g. the
-    line-following ``track``): name -> ``{"segments": (S, 4) m, "thickness": m, "color": (r, g, b, a)}``."""
+    line-following ``track``, a LINE_LIST of ``scene.line_list``): name -> ``{"segments": (S, 4) m,
+    "thickness": m, "color": (r, g, b, a)}``."""
     scenes = rec.topic(f"/env{ep.env}/scene", ep.start_time, ep.end_time)
     out: dict[str, dict] = {}
     for ent in scenes[0].data.get("entities", []) if scenes else []:
         if ent.get("id") in ("walls", "trail") or not ent.get("lines"):
             continue
         for k, ln in enumerate(ent["lines"]):
-            pts = np.asarray([(p["x"], p["y"]) for p in ln.get("points", [])], dtype=float).reshape(-1, 2)
-            if ln.get("type") == 2:  # LINE_LIST: point pairs
-                seg = pts[: len(pts) // 2 * 2].reshape(-1, 4)
-            else:  # LINE_STRIP / LINE_LOOP
-                if ln.get("type") == 1 and len(pts) > 2:
-                    pts = np.concatenate([pts, pts[:1]])
-                seg = np.concatenate([pts[:-1], pts[1:]], axis=1) if len(pts) > 1 else np.zeros((0, 4))
+            seg = np.asarray([(p["x"], p["y"]) for p in ln.get("points", [])], dtype=float).reshape(-1, 4)  # point pairs
             c = ln.get("color", {})
             out[ent["id"] if k == 0 else f"{ent['id']}.{k}"] = {
                 "segments": seg, "thickness": float(ln.get("thickness", 0.02)),
@@ -140,9 +135,9 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
     from matplotlib import animation
     from matplotlib.figure import Figure
 
-    from ..render import draw_goal, draw_obstacles, draw_rays, draw_robots
-
     from matplotlib.collections import LineCollection
+
+    from ..render import draw_goal, draw_obstacles, draw_rays, draw_robots
 
     out = Path(out)
     info = rec.info

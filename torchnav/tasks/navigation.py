@@ -99,7 +99,8 @@ class NavTask(BatchedTask):
         s += [1.0 / self.cfg.camera.max_range] * self.n_depth
         return torch.tensor(s, dtype=self.dtype, device=self.device)
 
-    def goal_vector(self, pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
+    @staticmethod
+    def goal_vector(pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
         """Distance (m) and bearing (rad, robot frame, CCW) from ``pose`` ``(B, 3)`` to ``goal`` ``(B, 2)``."""
         dx, dy = goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1]
         dist = safe_hypot(dx, dy)
