@@ -10,7 +10,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..sim import World
-from .layout import boundary_walls, centred_bounds, lerp, runs, take_slots
+from .layout import lerp, runs, take_slots, walled_world
 
 GRID = 20  # cells per side
 CELL = 0.5  # m, side of a cell: the cave is GRID * CELL = 10 m square
@@ -58,9 +58,4 @@ def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
         rock = smooth(rock)
     half = torch.full((b,), GRID * CELL / 2, dtype=like.dtype, device=dev)
     boxes, box_mask = rock_boxes(rock, -GRID * CELL / 2, MAX_BOXES)
-    world = World(
-        segments=boundary_walls(half, half), segment_mask=torch.ones(b, 4, dtype=torch.bool, device=dev),
-        circles=like.new_zeros(b, 0, 3), circle_mask=torch.zeros(b, 0, dtype=torch.bool, device=dev),
-        boxes=boxes.to(like.dtype), box_mask=box_mask, batch_size=[b], device=dev,
-    )
-    return world, centred_bounds(half, half)
+    return walled_world(half, half, boxes=(boxes.to(like.dtype), box_mask))

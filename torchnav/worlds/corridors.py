@@ -11,7 +11,7 @@ import torch
 from torch import Tensor
 
 from ..sim import World
-from .layout import boundary_walls, centred_bounds, grid_edges, lerp, random_spanning_tree, runs, take_slots, uniform
+from .layout import grid_edges, lerp, random_spanning_tree, runs, take_slots, uniform, walled_world
 
 MAX_CELLS = 9  # cells per side at difficulty 1
 MAX_SEGMENTS = 2 * (MAX_CELLS - 1) * math.ceil(MAX_CELLS / 2)  # merged interior walls, worst case
@@ -65,12 +65,4 @@ def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     ).reshape(b, -1, 4)
     idx, valid = take_slots(length.reshape(b, -1).to(like.dtype), MAX_SEGMENTS)
     walls = seg.gather(1, idx[..., None].expand(-1, -1, 4)) * valid[..., None]
-    segments = torch.cat((boundary_walls(half, half), walls), 1)
-    segment_mask = torch.cat((torch.ones(b, 4, dtype=torch.bool, device=dev), valid), 1)
-    world = World(
-        segments=segments, segment_mask=segment_mask,
-        circles=like.new_zeros(b, 0, 3), circle_mask=torch.zeros(b, 0, dtype=torch.bool, device=dev),
-        boxes=like.new_zeros(b, 0, 5), box_mask=torch.zeros(b, 0, dtype=torch.bool, device=dev),
-        batch_size=[b], device=dev,
-    )
-    return world, centred_bounds(half, half)
+    return walled_world(half, half, segments=(walls, valid))

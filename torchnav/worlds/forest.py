@@ -14,7 +14,7 @@ import torch
 from torch import Tensor
 
 from ..sim import World
-from .layout import boundary_walls, centred_bounds, lerp, uniform
+from .layout import lerp, uniform, walled_world
 
 SIDE = 10.0  # m, the forest is SIDE x SIDE
 MAX_DENSITY = 0.7  # posts per m^2 at difficulty 1
@@ -48,10 +48,4 @@ def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     xy = uniform(-reach, reach, (b, MAX_POSTS, 2), generator, like)
     on = torch.arange(MAX_POSTS, device=dev) < p["posts"][:, None]
     half = torch.full((b,), SIDE / 2, dtype=like.dtype, device=dev)
-    world = World(
-        segments=boundary_walls(half, half), segment_mask=torch.ones(b, 4, dtype=torch.bool, device=dev),
-        circles=torch.cat((xy, radius[..., None]), -1) * on[..., None], circle_mask=on,
-        boxes=like.new_zeros(b, 0, 5), box_mask=torch.zeros(b, 0, dtype=torch.bool, device=dev),
-        batch_size=[b], device=dev,
-    )
-    return world, centred_bounds(half, half)
+    return walled_world(half, half, circles=(torch.cat((xy, radius[..., None]), -1) * on[..., None], on))

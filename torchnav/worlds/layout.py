@@ -10,6 +10,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from ..sim import World
+
 
 def as_difficulty(difficulty: float | Tensor, num_envs: int, device: torch.device, dtype: torch.dtype) -> Tensor:
     """``difficulty`` (a number, or a ``(num_envs,)`` tensor) as a ``(num_envs,)`` tensor in [0, 1].
@@ -56,6 +58,25 @@ def boundary_walls(half_w: Tensor, half_h: Tensor) -> Tensor:
 def centred_bounds(half_w: Tensor, half_h: Tensor) -> Tensor:
     """``(B, 4)`` bounds ``[xmin, ymin, xmax, ymax]`` m of rectangles centred on the origin."""
     return torch.stack((-half_w, -half_h, half_w, half_h), -1)
+
+
+Slots = tuple[Tensor, Tensor]  # obstacle rows (B, N, k) and their mask (B, N)
+
+
+def walled_world(half_w: Tensor, half_h: Tensor, segments: Slots | None = None, circles: Slots | None = None,
+                 boxes: Slots | None = None) -> tuple[World, Tensor]:
+    """A family's worlds: the 4 walls of the rectangles ``[-half_w, half_w] x [-half_h, half_h]``
+    ``(B,)`` m, then the given slots of each obstacle kind (none: no slots of that kind); and
+    the rectangles' bounds ``(B, 4)`` m."""
+    b, like = half_w.shape[0], half_w
+    mask = lambda n, on: torch.full((b, n), on, dtype=torch.bool, device=like.device)  # noqa: E731
+    empty = lambda width: (like.new_zeros(b, 0, width), mask(0, False))  # noqa: E731
+    seg, seg_on = segments if segments is not None else empty(4)
+    circ, circ_on = circles if circles is not None else empty(3)
+    box, box_on = boxes if boxes is not None else empty(5)
+    world = World(segments=torch.cat((boundary_walls(half_w, half_h), seg), 1), segment_mask=torch.cat((mask(4, True), seg_on), 1),
+                  circles=circ, circle_mask=circ_on, boxes=box, box_mask=box_on, batch_size=[b], device=like.device)
+    return world, centred_bounds(half_w, half_h)
 
 
 def grid_edges(rows: int, cols: int, device: torch.device) -> tuple[Tensor, Tensor, Tensor]:

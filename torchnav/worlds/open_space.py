@@ -17,7 +17,7 @@ import torch
 from torch import Tensor
 
 from ..sim import World
-from .layout import boundary_walls, centred_bounds, lerp, uniform
+from .layout import lerp, uniform, walled_world
 
 MAX_BOXES = 8
 MAX_CIRCLES = 4
@@ -53,10 +53,5 @@ def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     radius = uniform(*CIRCLE_RADIUS, (b, MAX_CIRCLES, 1), generator, like)
     box_on = torch.arange(MAX_BOXES, device=dev) < p["boxes"][:, None]
     circle_on = torch.arange(MAX_CIRCLES, device=dev) < p["circles"][:, None]
-    world = World(
-        segments=boundary_walls(half, half), segment_mask=torch.ones(b, 4, dtype=torch.bool, device=dev),
-        circles=torch.cat((circle_xy, radius), -1) * circle_on[..., None], circle_mask=circle_on,
-        boxes=torch.cat((box_xy, box_half, yaw), -1) * box_on[..., None], box_mask=box_on,
-        batch_size=[b], device=dev,
-    )
-    return world, centred_bounds(half, half)
+    return walled_world(half, half, circles=(torch.cat((circle_xy, radius), -1) * circle_on[..., None], circle_on),
+                        boxes=(torch.cat((box_xy, box_half, yaw), -1) * box_on[..., None], box_on))

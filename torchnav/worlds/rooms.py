@@ -13,7 +13,7 @@ import torch
 from torch import Tensor
 
 from ..sim import World
-from .layout import boundary_walls, centred_bounds, grid_edges, lerp, random_spanning_tree, uniform
+from .layout import grid_edges, lerp, random_spanning_tree, uniform, walled_world
 
 MAX_ROOMS = 4  # rooms per side at difficulty 1
 ROOM_SIZE = (2.5, 4.0)  # m, range of a column's width and a row's height
@@ -92,13 +92,5 @@ def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     second_start = p0 + unit * (offset + width)[..., None]
     walls = torch.stack((torch.cat((p0, first_end), -1), torch.cat((second_start, p1), -1)), 2).reshape(b, 2 * e, 4)
     wall_mask = torch.stack((wall_on, wall_on & door), 2).reshape(b, 2 * e)
-    half_w, half_h = xe[:, -1], ye[:, -1]
-    segments = torch.cat((boundary_walls(half_w, half_h), walls), 1)
-    segment_mask = torch.cat((torch.ones(b, 4, dtype=torch.bool, device=dev), wall_mask), 1)
-    boxes, box_mask = _furniture(xe, ye, cell_on, p["furniture_prob"], generator)
-    world = World(
-        segments=segments, segment_mask=segment_mask,
-        circles=like.new_zeros(b, 0, 3), circle_mask=torch.zeros(b, 0, dtype=torch.bool, device=dev),
-        boxes=boxes, box_mask=box_mask, batch_size=[b], device=dev,
-    )
-    return world, centred_bounds(half_w, half_h)
+    furniture = _furniture(xe, ye, cell_on, p["furniture_prob"], generator)
+    return walled_world(xe[:, -1], ye[:, -1], segments=(walls, wall_mask), boxes=furniture)
