@@ -176,6 +176,13 @@ def to_dict(obj: Any) -> Any:
     return obj
 
 
+def fields_as(cls: type[T], obj: Any, **values: Any) -> T:
+    """Dataclass ``cls`` from the fields of dataclass ``obj`` that ``cls`` has too, and ``values`` (a config
+    section as the simulator's parameters: ``fields_as(ImuParams, cfg.imu)``)."""
+    names = {f.name for f in dataclasses.fields(cls)} - set(values)
+    return cls(**{f.name: getattr(obj, f.name) for f in dataclasses.fields(obj) if f.name in names}, **values)
+
+
 def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict:
     """Recursive dict merge: values in ``override`` win; nested mappings merge."""
     out = dict(base)

@@ -56,6 +56,11 @@ class Network:
         return self.out_size if self.action_table is None else int(self.action_table.shape[1])
 
     @property
+    def output_width(self) -> int:
+        """Floats an exported program writes per observation: the action, or (argmax) index, action and Q-values."""
+        return 1 + self.act_size + self.out_size if self.output == "argmax" else self.act_size
+
+    @property
     def max_width(self) -> int:
         return max(w.shape[0] for w, _ in self.layers)
 

@@ -155,7 +155,7 @@ void Reset_Handler(void)
 def _firmware(net: Network, name: str) -> str:
     N = name.upper()
     discrete = net.output == "argmax"
-    out_size = 1 + net.act_size + net.out_size if discrete else net.act_size
+    out_size = net.output_width
     outputs = ([f"        out[0] = (float){name}_forward_index(obs);",
                 f"        for (i = 0; i < {N}_ACT_SIZE; ++i) out[1 + i] = action[i];",
                 f"        {name}_q_values(obs, out + 1 + {N}_ACT_SIZE);"] if discrete else
@@ -294,7 +294,7 @@ def export_cortex_m4f(net: Network, out_dir: str | Path, name: str = "policy") -
                                  "Makefile": _makefile(name)})
 
 
-def _sizes(elf: Path, objects: list[Path]) -> dict[str, int]:
+def _sizes(elf: Path, obj: Path) -> dict[str, int]:
     """Section sizes (``arm-none-eabi-size -A``) of the ELF and of the policy's object file."""
     def sections(path: Path) -> dict[str, int]:
         r = run_tool([CROSS_SIZE, "-A", str(path)], "arm-none-eabi-size")
@@ -308,11 +308,7 @@ def _sizes(elf: Path, objects: list[Path]) -> dict[str, int]:
     def kind(sec: dict[str, int], prefix: tuple[str, ...]) -> int:
         return sum(v for k, v in sec.items() if k.startswith(prefix))
 
-    elf_s = sections(elf)
-    obj_s: dict[str, int] = {}
-    for o in objects:
-        for k, v in sections(o).items():
-            obj_s[k] = obj_s.get(k, 0) + v
+    elf_s, obj_s = sections(elf), sections(obj)
     return {
         # the whole firmware: .text holds code and read-only data (see the linker script), .data is copied from flash
         "flash_bytes": elf_s.get(".text", 0) + elf_s.get(".ARM.exidx", 0) + elf_s.get(".data", 0),
@@ -332,7 +328,7 @@ def build_cortex_m4f(out_dir: str | Path, name: str = "policy", workdir: str | P
     elf = work / f"{name}_m4.elf"
     run_tool([CROSS_CC, *flags, "-T", str(out_dir / LINKER_SCRIPT), *LD_FLAGS, str(obj),
           str(out_dir / f"{name}_m4.c"), str(out_dir / "startup_m4.c"), *LIBS, "-o", str(elf)], "cross-compiling the firmware")
-    return elf, _sizes(elf, [obj])
+    return elf, _sizes(elf, obj)
 
 
 def run_qemu(elf: str | Path, obs: np.ndarray, net: Network, workdir: str | Path, timeout: float = 600) -> tuple[dict[str, np.ndarray], dict[str, int]]:
@@ -350,8 +346,7 @@ def run_qemu(elf: str | Path, obs: np.ndarray, net: Network, workdir: str | Path
     if summary["n"] != len(obs):
         raise RuntimeError(f"the firmware ran {summary['n']} observations of {len(obs)}")
     vals = np.fromfile(workdir / "out.bin", dtype="<f4").astype(np.float64)
-    width = 1 + net.act_size + net.out_size if net.output == "argmax" else net.act_size
-    return outputs(vals.reshape(len(obs), width), net), summary
+    return outputs(vals.reshape(len(obs), net.output_width), net), summary
 
 
 def verify_cortex_m4f(out_dir: str | Path, net: Network, ref: dict[str, np.ndarray], obs: np.ndarray, tolerance: float,

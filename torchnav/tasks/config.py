@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from ..config import ConfigError, TaskConfig
+from ..config import ConfigError, TaskConfig, fields_as
 from ..sim import RANDOMIZED, CameraParams, ImuParams, LidarParams, SimParams
 from ..sim.randomize import check_ranges
 
@@ -244,27 +244,13 @@ class NavConfig(TaskConfig):
 
 
     def sim_params(self) -> SimParams:
-        r, li, im, ca = self.robot, self.lidar, self.imu, self.camera
+        r, ca = self.robot, self.camera
         try:
-            imu = ImuParams(
-                accel_noise=im.accel_noise, gyro_noise=im.gyro_noise, accel_bias_walk=im.accel_bias_walk,
-                gyro_bias_walk=im.gyro_bias_walk, rate=im.rate,
-            ) if im.enabled else None
-            camera = CameraParams(
-                n_cols=ca.n_cols, n_rows=ca.n_rows, fov=math.radians(ca.fov_deg), max_range=ca.max_range,
-                height=ca.height, offset=ca.offset,
-            ) if ca.enabled else None
-            lidar = LidarParams(
-                n_rays=li.n_rays, fov=math.radians(li.fov_deg), min_range=li.min_range, max_range=li.max_range,
-                offset=li.offset, n_sectors=li.n_sectors, noise_std=li.noise_std,
-                scan=li.scan, window=li.window, dense_slots=li.dense_slots,
-            )
-            return SimParams(
-                dt=r.dt, robot_radius=r.radius, track_width=r.track_width,
-                v_min=0.0 if self.action.forward_only else -r.v_max, v_max=r.v_max, omega_max=r.omega_max,
-                lin_acc_max=r.lin_acc_max, ang_acc_max=r.ang_acc_max, integrator=r.integrator,
-                odom_v_noise=r.odom_v_noise, odom_omega_noise=r.odom_omega_noise, lidar=lidar,
-                imu=imu, camera=camera,
+            return fields_as(
+                SimParams, r, robot_radius=r.radius, v_min=0.0 if self.action.forward_only else -r.v_max,
+                lidar=fields_as(LidarParams, self.lidar, fov=math.radians(self.lidar.fov_deg)),
+                imu=fields_as(ImuParams, self.imu) if self.imu.enabled else None,
+                camera=fields_as(CameraParams, ca, fov=math.radians(ca.fov_deg)) if ca.enabled else None,
             )
         except ValueError as e:
             raise ConfigError(f"robot/lidar: {e}") from e

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..config import ConfigError, TaskConfig
+from ..config import ConfigError, TaskConfig, fields_as
 from ..sim import LidarParams, SimParams
 from ..sim.floor import FloorSensorParams
 
@@ -145,11 +145,7 @@ class LineConfig(TaskConfig):
             raise ConfigError(f"robot/distance_sensor: {e}") from e
 
     def sensor_params(self) -> FloorSensorParams:
-        s = self.sensors
         try:
-            return FloorSensorParams(
-                count=s.count, spacing=s.spacing, forward=s.forward, radius=s.radius, mode=s.mode,
-                threshold=s.threshold, noise_std=s.noise_std, softness=s.softness,
-            )
+            return fields_as(FloorSensorParams, self.sensors)
         except ValueError as e:
             raise ConfigError(str(e)) from e
