@@ -28,7 +28,6 @@ def _check_type(value: Any, tp: Any, where: str) -> Any:
     if tp is Any:
         return value
     if origin in (typing.Union, types.UnionType):
-        errors = []
         for arg in typing.get_args(tp):
             if arg is type(None):
                 if value is None:
@@ -36,8 +35,8 @@ def _check_type(value: Any, tp: Any, where: str) -> Any:
                 continue
             try:
                 return _check_type(value, arg, where)
-            except ConfigError as e:
-                errors.append(str(e))
+            except ConfigError:
+                pass  # try the next type of the union
         raise ConfigError(f"{where}: {value!r} does not match {tp}")
     if dataclasses.is_dataclass(tp):
         if isinstance(value, tp):

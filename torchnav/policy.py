@@ -111,16 +111,13 @@ class SavedPolicy:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def config(self):
-        """The task config object (``NavConfig`` or the line task's config) it was trained with."""
-        if self.task == "nav":
-            from .tasks import NavConfig
+        """The task config object (``NavConfig`` or ``LineConfig``) it was trained with."""
+        from .tasks import LineConfig, NavConfig
 
-            return NavConfig.from_dict(self.task_config, where=f"{self.path}:task_config")
-        if self.task == "line":
-            from .tasks import LineConfig
-
-            return LineConfig.from_dict(self.task_config, where=f"{self.path}:task_config")
-        raise ValueError(f"{self.path}: unknown task {self.task!r}")
+        configs = {"nav": NavConfig, "line": LineConfig}
+        if self.task not in configs:
+            raise ValueError(f"{self.path}: unknown task {self.task!r}")
+        return configs[self.task].from_dict(self.task_config, where=f"{self.path}:task_config")
 
 
 def policy_payload(actor: Actor, *, task: str, task_config: dict[str, Any], algorithm: str,

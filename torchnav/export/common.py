@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .. import __version__
 from ..policy import Actor, SavedPolicy
 
 WEIGHT_FORMATS = ("float32", "float16", "int8")
@@ -79,19 +80,13 @@ class Network:
                 "macs": int(sum(w.size for w, _ in self.layers))}
 
 
-def _version() -> str:
-    from .. import __version__
-
-    return __version__
-
-
 def network_of(policy: SavedPolicy | Actor, action_table: torch.Tensor | None = None) -> Network:
     """Plain arrays of a loaded policy (or a bare ``Actor`` plus its ``action_table`` ``(A, 2)``).
 
     Raises ``ValueError`` for non-finite parameters or an argmax actor without a
     matching action table.
     """
-    meta: dict[str, str] = {"torchnav_version": _version()}
+    meta: dict[str, str] = {"torchnav_version": __version__}
     if isinstance(policy, SavedPolicy):
         actor, table = policy.actor, policy.action_table if action_table is None else action_table
         meta.update(algorithm=str(policy.algorithm), task=str(policy.task))

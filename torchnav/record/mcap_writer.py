@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from .. import __version__
 from ..sim import camera_image, mover_world
 from . import scene
 from .schemas import action_schema, event_schema, foxglove_schema, imu_schema, movers_schema, reward_schema
@@ -67,12 +68,6 @@ def _uninstall_sigterm() -> None:
         if signal.getsignal(signal.SIGTERM) is _on_sigterm:
             signal.signal(signal.SIGTERM, _SIG["previous"])
         _SIG["installed"] = False
-
-
-def _version() -> str:
-    from .. import __version__
-
-    return __version__
 
 
 _SHARED = {"odom_estimate": "odom", "camera_depth": "camera"}  # topics that use another topic's schema
@@ -182,7 +177,7 @@ class EpisodeRecorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
         self._writer = Writer(self._file, compression=CompressionType.ZSTD, chunk_size=1 << 20)
-        self._writer.start(profile="", library=f"torchnav {_version()}")
+        self._writer.start(profile="", library=f"torchnav {__version__}")
         sid = {k: self._writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode()) for k, s in self.schemas().items()}
         for st in self.streams:
             st.channels = {
@@ -197,7 +192,7 @@ class EpisodeRecorder:
 
         cfg, li = self.env.cfg, self.lidar
         meta = {
-            "version": _version(), "map": str(getattr(cfg, "map", getattr(cfg, "track", ""))), "seed": "", "checkpoint": "",
+            "version": __version__, "map": str(getattr(cfg, "map", getattr(cfg, "track", ""))), "seed": "", "checkpoint": "",
             "config": json.dumps(to_dict(cfg), default=str),
             "envs": json.dumps(self.envs), "num_envs": str(self.env.num_envs), "dt": repr(cfg.robot.dt),
             "lidar": json.dumps({"n_rays": li.n_rays, "fov": li.fov, "min_range": li.min_range, "max_range": li.max_range,
