@@ -192,6 +192,13 @@ def check_grey_level(ctx: Ctx, v: Any, key: str) -> float:
     return float(v)
 
 
+def check_image(ctx: Ctx, v: Any, key: str, base_dir: Any) -> Path:
+    """The path of a PNG image given as a string, relative to ``base_dir`` (the file's folder; None: the current one)."""
+    if not isinstance(v, str) or not v:
+        raise ctx.fail(key, f"expected a path to a PNG file, got {show(v)}")
+    return Path(v) if base_dir is None or os.path.isabs(v) else Path(base_dir) / v
+
+
 def check_list(ctx: Ctx, v: Any, key: str, expected: str, item: Any) -> tuple:
     """``item(f"{key}[{i}]", entry)`` of every entry of the list ``v``; anything but a list fails naming ``key`` and ``expected``."""
     if not isinstance(v, list):

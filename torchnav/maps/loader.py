@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import math
 import os
-from pathlib import Path
 from typing import Any
 
 
-from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_list, check_mapping, check_number, check_range, check_vector, load_named,
+from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_image, check_list, check_mapping, check_number, check_range, check_vector, load_named,
                          shipped_folder, shipped_names, show)
 from .occupancy import ImageError, mask_boxes, read_mask
 from ..sim.camera import ObstacleStyles
@@ -158,13 +157,10 @@ def _occupancy(ctx: Ctx, v: Any, size: tuple[float, float], base_dir: str | os.P
     """Boxes covering exactly the occupied pixels of the ``occupancy`` image (see :mod:`.occupancy`)."""
     k = "occupancy"
     v = check_mapping(ctx, v, k, ("image", "resolution"), ("origin", "threshold", "invert"))
-    img = v["image"]
-    if not isinstance(img, str) or not img:
-        raise ctx.fail(f"{k}.image", f"expected a path to a PNG file, got {show(img)}")
+    path = check_image(ctx, v["image"], f"{k}.image", base_dir)
     res = check_number(ctx, v["resolution"], f"{k}.resolution", "pos")
     thr = check_grey_level(ctx, v.get("threshold", 0.5), f"{k}.threshold")
     invert = check_bool(ctx, v.get("invert", False), f"{k}.invert")
-    path = Path(img) if base_dir is None or os.path.isabs(img) else Path(base_dir) / img
     try:
         # Dark pixels are occupied (black on white, as drawn and as ROS map_server images), light ones with invert.
         mask = read_mask(path, thr, invert=not invert)

@@ -6,15 +6,13 @@ file and the key path (``course.yaml: lines[1].corner_radius: ...``)."""
 
 from __future__ import annotations
 
-import math
 import os
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..maps.occupancy import ImageError, read_mask
-from ..yamlcheck import (Ctx, check_bool, check_grey_level, check_list, check_mapping, check_number, check_vector, is_number, load_named, shipped_folder,
+from ..yamlcheck import (Ctx, check_bool, check_grey_level, check_image, check_list, check_mapping, check_number, check_vector, is_number, load_named, shipped_folder,
                          shipped_names, show)
 from .geometry import CurveError, catmull_rom, fillet_polyline, resample
 from .png import track_from_mask
@@ -85,7 +83,6 @@ def parse_track(data: Any, source: str = "<dict>", default_name: str = "track", 
     spacing = check_number(ctx, d.get("spacing", DEFAULT_SPACING), "spacing", "pos")
     walls = _walls(ctx, d.get("walls", []))
     if "image" in d:
-
         return _track_from_png(ctx, d, name, desc, spacing, walls, base_dir)
     width = check_number(ctx, d["width"], "width", "pos")
     lines_v = d["lines"]
@@ -117,10 +114,7 @@ def parse_track(data: Any, source: str = "<dict>", default_name: str = "track", 
 
 def _track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, walls: np.ndarray, base_dir: Any) -> Track:
     """The ``image:`` form of a track file (called by the loader with the validated mapping)."""
-    img = d["image"]
-    if not isinstance(img, str):
-        raise ctx.fail("image", f"expected a path to a PNG file, got {img!r}")
-    path = Path(img) if base_dir is None or os.path.isabs(img) else Path(base_dir) / img
+    path = check_image(ctx, d["image"], "image", base_dir)
     res = check_number(ctx, d["resolution"], "resolution", "pos")
     origin = check_vector(ctx, d["origin"], "origin", 2) if "origin" in d else None
     thr = check_grey_level(ctx, d.get("threshold", 0.5), "threshold")
@@ -134,8 +128,6 @@ def _track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, wal
         mask = read_mask(path, thr, invert)
     except ImageError as e:
         raise ctx.fail("image", str(e)) from None
-    if not math.isfinite(res):
-        raise ctx.fail("resolution", "must be finite")
     return track_from_mask(mask, res, origin, width, lap, spacing, walls, name, ctx.source, desc)
 
 
