@@ -61,14 +61,9 @@ class ReactiveGains:
 
 
 class Reactive(Controller):
-    """Go-to-goal that steers around what the lidar sees (a minimal vector-field-histogram).
-
-    Candidate headings are the goal bearing and every ray direction. A heading is *open*
-    when no lidar return lies in the corridor of half-width ``radius + margin`` reaching
-    ``lookahead`` m ahead along it (or up to the goal, if nearer). The robot steers at the
-    goal if that is open, else at the open heading closest to it, and turns on the spot
-    towards the goal when nothing is open. Speed follows go-to-goal and is cut near returns.
-    """
+    """Go-to-goal that steers around what the lidar sees, a minimal vector-field-histogram
+    (docs/controllers.md, "reactive"): at the goal if that heading is open, else at the open
+    ray direction nearest to it, on the spot towards the goal when nothing is open."""
 
     def __init__(self, gains: ReactiveGains | dict | None = None, nav: NavConfig | None = None):
         super().__init__(nav)
@@ -130,15 +125,9 @@ class PotentialFieldGains:
 
 
 class PotentialField(Controller):
-    """Classic artificial potential field (Khatib 1986) on lidar returns.
-
-    Force in the robot frame: a pull towards the goal (linear up to ``att_distance``,
-    constant beyond) plus, for every return whose gap ``d`` (its distance minus the robot
-    radius) is below ``influence``, a push away from it of ``k_rep (1/d - 1/d0) / d^2``,
-    weighted by the ray spacing so the total does not depend on the number of rays. The
-    robot heads along the force. Where pull and push cancel (a cup facing the goal) the
-    force vanishes or flips back and forth: the local minimum the theory predicts.
-    """
+    """Classic artificial potential field (Khatib 1986) on lidar returns: the robot heads along
+    the pull to the goal plus each near return's push (docs/controllers.md, "potential_field"),
+    and stops in the local minima the theory predicts (a cup facing the goal)."""
 
     def __init__(self, gains: PotentialFieldGains | dict | None = None, nav: NavConfig | None = None):
         super().__init__(nav)

@@ -50,23 +50,14 @@ class TrackerGains:
 
 
 class WaypointTracker:
-    """Batched path tracker: a carrot on the current segment, PID on the heading error to it.
+    """Batched path tracker: a carrot on the current segment, PID on the heading error to it. The
+    carrot, the switch to the next segment and the speed limits: docs/controllers.md, "astar and rrt".
 
     State per env: the path ``(B, W, 2)`` m (row 0 where the robot was when it got the
     path, padded by repeating the last point), its length ``(B,)``, the index of the
     waypoint the robot is heading for (segment ``idx-1 -> idx``), the PID integral and
-    last error. The carrot is the robot's projection on the segment moved ``lookahead``
-    m along it (never past the waypoint), which pulls the robot back onto the line.
-    The next segment starts when the robot is within ``accept_radius`` of the waypoint
-    or has passed it.
-
-    Speed: ``k_v`` times the remaining path length, times ``cos(error)``, zero above
-    ``turn_in_place``; and on the way to a waypoint where the path turns by ``a`` rad at most
-    ``k_v * distance + corner_speed + v_max * max(0, 1 - a / corner_angle)`` (slow into
-    sharp corners: at ``v`` the robot turns on an arc of radius ``v / omega_max`` and would
-    swing wide of a path that hugs an obstacle). Finally the pure-pursuit bound
-    ``v <= omega_max * L / (2 |sin(error)|)``, ``L`` the distance to the carrot: the arc
-    through the carrot must be one the robot can turn at its top turn rate.
+    last error. At a waypoint where the path turns by ``a`` rad the speed is at most
+    ``k_v * distance + corner_speed + v_max * max(0, 1 - a / corner_angle)``.
     """
 
     def __init__(self, gains: TrackerGains, num_envs: int, dt: float, v_max: float = 1.0, omega_max: float = 1.0,

@@ -251,13 +251,9 @@ class EpisodeRecorder:
         return {s.env: s.steps_written for s in self.streams}
 
     def write_step(self, td: TensorDictBase, state: Any | None = None) -> None:
-        """Buffer one step ``(B,)``: root keys before it, ``("next", ...)`` after it.
-
-        ``state``: the env's ``NavState`` right after ``env.step`` (before any reset), for
-        the episode's world, the odometry estimate and the applied twist. Without it the
-        world is the map's fixed obstacles, the twist is the commanded one and no
-        odometry estimate is written.
-        """
+        """Buffer one step ``(B,)``: root keys before it, ``("next", ...)`` after it; ``state``: the env's
+        state right after ``env.step``, for the episode's world, the odometry estimate and the applied
+        twist (without it: the map's fixed obstacles and the commanded twist; docs/foxglove.md)."""
         if not self.enabled or self.finished:
             return
         self._buffer.append(self._select(td, state))
@@ -265,13 +261,9 @@ class EpisodeRecorder:
             self._drain()
 
     def write_rollout(self, td: TensorDictBase, states: Iterable[Any] | None = None) -> None:
-        """Write a rollout ``(B, T)`` (``env.rollout(..., break_when_any_done=False)`` layout).
-
-        A rollout carries no world: episodes are drawn with the map's fixed obstacles
-        only (random boxes and circles are re-placed at every reset); use
-        :func:`record_rollout` to record them. ``states`` optionally gives the
-        ``NavState`` after each step.
-        """
+        """Write a rollout ``(B, T)`` (``env.rollout(..., break_when_any_done=False)`` layout), with the
+        state after each step in ``states`` if given; without them the episodes show the map's fixed
+        obstacles only (docs/foxglove.md, "Recording")."""
         if td.batch_dims == 1:
             td = td.unsqueeze(-1)
         states = list(states) if states is not None else [None] * td.shape[1]
@@ -385,15 +377,9 @@ def record_rollout(
     tensordict: TensorDictBase | None = None,
     stack: bool = True,
 ) -> TensorDictBase | list[TensorDictBase]:
-    """``env.rollout(max_steps, policy, break_when_any_done=False)`` that also records.
-
-    Steps the env itself so that the recorder sees the state after each step and
-    before the auto-reset (the episode's world, odometry estimate, applied twist).
-    With ``recorder=None`` it is a plain rollout: recording costs nothing when off.
-    Stops early once ``recorder.finished`` (its ``episodes`` limit is reached).
-    ``policy=None`` takes random actions. Returns the ``(B, T)`` rollout (or the list
-    of ``(B,)`` steps with ``stack=False``).
-    """
+    """``env.rollout(max_steps, policy, break_when_any_done=False)`` that also records the state after
+    each step, before the auto-reset (docs/foxglove.md, "Recording"). Returns the ``(B, T)`` rollout
+    (or the list of ``(B,)`` steps with ``stack=False``)."""
     from torchrl.envs.utils import step_mdp
 
     td = env.reset() if tensordict is None else tensordict

@@ -16,22 +16,9 @@ def _require(cond: bool, msg: str) -> None:
 
 @dataclass(frozen=True)
 class LidarParams:
-    """A planar lidar mounted on the robot.
-
-    Ray ``i`` points at ``angle_i = -fov/2 + i * fov / (n_rays - 1)`` in the sensor
-    frame for a partial field of view (so ray 0 looks to the right, the last ray to
-    the left, counter-clockwise order), and ``-pi + i * 2*pi / n_rays`` for a full
-    360-degree field of view (ray 0 looks backwards, ray ``n_rays/2`` straight ahead).
-
-    With ``scan="sectors"`` each of the ``n_rays`` readings is a sector instead: the
-    field of view is cut into ``n_rays`` equal wedges (sector 0 on the right, or
-    behind for a full circle) and each reads the distance to the nearest obstacle
-    point inside its wedge, what infinitely dense rays min-pooled per wedge would read.
-
-    ``window`` and ``dense_slots`` tune the broad phase for worlds with many obstacles
-    (``torchnav/sim/raycast.py``); they never change a reading while an env has at
-    most ``dense_slots`` obstacles of a kind that look wider than the window.
-    """
+    """A planar lidar mounted on the robot. The ray order (counter-clockwise, ray 0 on the right or,
+    for 360 degrees, behind): docs/sim.md, "Frames"; the exact sector scan (``scan="sectors"``) and
+    the broad phase (``window``, ``dense_slots``): docs/sim.md, "Lidar"."""
 
     n_rays: int = 20  # number of raw rays
     fov: float = math.pi  # field of view, rad (0, 2*pi]
@@ -99,14 +86,8 @@ RGB = tuple[int, int, int]
 
 @dataclass(frozen=True)
 class CameraParams:
-    """A forward pinhole camera rendered by ray casting the 2D world (``camera.py``).
-
-    Column ``j`` of ``n_cols`` (0 on the left of the image) looks along the sensor-frame
-    angle ``atan((n_cols/2 - j - 1/2) / f)`` with ``f = (n_cols/2) / tan(fov/2)``, so
-    the columns are evenly spaced on the image plane. Pixels are square: the image's
-    ``n_rows`` rows share the focal length. Obstacles stand on the floor as prisms of
-    the kind's height and colour.
-    """
+    """A forward pinhole camera rendered by ray casting the 2D world (``camera.py``); its column
+    angles, square pixels and obstacle prisms: docs/sim.md, "Camera"."""
 
     n_cols: int = 64  # image width, pixels (= depth readings)
     n_rows: int = 48  # image height, pixels (RGB only)

@@ -58,13 +58,8 @@ def _random_cell(candidates: Tensor, generator: torch.Generator) -> Tensor:
 
 
 def _start_and_distances(free: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-    """A start cell ``(B,)`` in a large free component and the distances from it ``(B, H * W)``.
-
-    The start is drawn uniformly over the free cells. Where its component holds
-    less than half of them (a pocket of a cave), it is redrawn among the free
-    cells it does not reach, up to ``START_REDRAWS`` times, keeping the start
-    that reaches the most cells.
-    """
+    """A start cell ``(B,)`` in a large free component and the distances from it ``(B, H * W)``; how the
+    start is redrawn out of a pocket (``START_REDRAWS`` times): docs/worlds.md, "Starts, goals and the path guarantee"."""
     b = free.shape[0]
     flat_free = free.reshape(b, -1)
     start = _random_cell(flat_free, generator)
