@@ -57,16 +57,21 @@ def after_placements(cur: CurriculumState, cfg: CurriculumConfig, n_placed: Tens
     return replace(cur, radius=radius, placements=placements)
 
 
+def _fold(rate: Tensor, n: Tensor, successes: Tensor, smoothing: float) -> Tensor:
+    """A success average after ``n`` finished episodes, ``successes`` of them successful: each
+    moves it by ``smoothing`` towards its outcome (unchanged where ``n`` is 0)."""
+    keep = (1.0 - smoothing) ** n
+    return torch.where(n > 0, keep * rate + (1 - keep) * successes / n.clamp(min=1), rate)
+
+
 def after_episodes(cur: CurriculumState, cfg: CurriculumConfig, done: Tensor, success: Tensor) -> CurriculumState:
     """Mode "success": fold finished episodes ``done`` ``(B,)`` with outcome ``success`` ``(B,)``
     into the success average, and grow the radius by ``success_step`` when it exceeds the threshold."""
     if cfg.mode != "success":
         return cur
-    n = done.sum()
-    # Each finished episode moves the average by `success_smoothing` towards its outcome.
-    keep = (1.0 - cfg.success_smoothing) ** n.to(cur.success_rate.dtype)
-    mean = (success & done).sum().to(cur.success_rate.dtype) / n.clamp(min=1)
-    rate = torch.where(n > 0, keep * cur.success_rate + (1 - keep) * mean, cur.success_rate)
+    dtype = cur.success_rate.dtype
+    n = done.sum().to(dtype)
+    rate = _fold(cur.success_rate, n, (success & done).sum().to(dtype), cfg.success_smoothing)
     grow = (n > 0) & (rate > cfg.success_threshold)
     radius = torch.where(grow, cur.radius + cfg.success_step, cur.radius).clamp(max=cfg.max_radius)
     return replace(cur, radius=radius, success_rate=rate)
@@ -89,9 +94,7 @@ def after_family_episodes(cur: CurriculumState, cfg: WorldsConfig, done: Tensor,
         done = done & (difficulty >= cur.difficulty[family] - 1e-6)
     hot = torch.nn.functional.one_hot(family, cur.difficulty.numel()).to(dtype) * done.to(dtype)[:, None]  # (B, F)
     n = hot.sum(0)
-    mean = (hot * success.to(dtype)[:, None]).sum(0) / n.clamp(min=1)
-    keep = (1.0 - cfg.success_smoothing) ** n
-    rate = keep * cur.family_success + (1 - keep) * mean
+    rate = _fold(cur.family_success, n, (hot * success.to(dtype)[:, None]).sum(0), cfg.success_smoothing)
     grow = (n > 0) & (rate > cfg.success_threshold) & (cur.difficulty < cfg.max_difficulty)
     difficulty = torch.where(grow, cur.difficulty + cfg.difficulty_step, cur.difficulty).clamp(max=cfg.max_difficulty)
     # A raised family starts its average afresh: it must earn the next level at the new one
