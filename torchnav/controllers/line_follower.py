@@ -23,6 +23,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from ..config import ConfigError
+from ..sim import unicycle_to_wheels
 from ..tasks.line_config import LineConfig
 from .base import parse_gains
 
@@ -80,8 +81,7 @@ class LineFollower(TensorDictModuleBase):
         e_prev = torch.where(seen[:, -2], err[:, -2], e_now)
         omega = g.kp * e_now + g.kd * (e_now - e_prev) / c.robot.dt
         v = g.v_base * (1 - g.slow * e_now.abs() / self.y_max)
-        half = 0.5 * c.robot.track_width * omega
-        wheels = torch.stack((v - half, v + half), -1)
+        wheels = unicycle_to_wheels(torch.stack((v, omega), -1), c.robot.track_width)
         vmax = c.robot.wheel_speed_max
         lo = 0.0 if c.action.forward_only else -vmax
         # keep the turn: shift the pair down if the faster wheel is over the limit, then clamp

@@ -15,7 +15,6 @@ import math
 import os
 from typing import Any
 
-
 from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_image, check_list, check_mapping, check_number, check_range, check_vector, load_named,
                          shipped_folder, shipped_names, show)
 from .occupancy import ImageError, mask_boxes, read_mask

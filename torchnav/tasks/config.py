@@ -242,7 +242,6 @@ class NavConfig(TaskConfig):
         except ValueError as e:
             raise ConfigError(str(e)) from None
 
-
     def sim_params(self) -> SimParams:
         r, ca = self.robot, self.camera
         try:

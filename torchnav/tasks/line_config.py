@@ -125,7 +125,6 @@ class LineConfig(TaskConfig):
         self.sim_params()
         self.sensor_params()
 
-
     def weights(self) -> dict[str, float]:
         """Reward weights: the defaults with ``reward.weights`` applied (zero weights dropped)."""
         w = {**DEFAULT_LINE_WEIGHTS, **self.reward.weights}

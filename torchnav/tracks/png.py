@@ -7,7 +7,6 @@ the loop traced, smoothed over 5 pixels and oriented counter-clockwise (docs/lin
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from .geometry import resample
