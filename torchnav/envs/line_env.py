@@ -1,10 +1,6 @@
-"""TorchRL environment for the line-following task: a thin wrapper around ``LineTask``.
-
-Follows ``NavEnv``'s conventions: ``batch_size=(num_envs,)``, specs made in one place,
-partial resets through the ``"_reset"`` mask, an explicit ``torch.Generator`` seeded
-by ``set_seed``, running per-episode statistics under ``"episode"`` (read them where
-``done`` is set) and one metric per reward term under ``"reward_terms"``.
-"""
+"""TorchRL environment for the line-following task: a :class:`~torchnav.envs.base.BatchedEnv` around
+``LineTask`` (partial resets, an explicit generator, running ``"episode"`` statistics and one
+``"reward_terms"`` entry per term, as ``NavEnv``)."""
 
 from __future__ import annotations
 
@@ -22,14 +18,8 @@ FLAG_KEYS = ("on_line", "left_line", "stalled", "collision", "lap_completed")
 
 
 class LineEnv(BatchedEnv):
-    """Batched line following (see docs/line.md for observation, action and reward).
-
-    Outputs of every reset and step: ``observation`` ``(B, H*K [+1])``, ``sensors`` ``(B, K)``
-    (current readings), ``pose`` ``(B, 3)``, ``ranges`` ``(B, 1)`` (forward distance, m),
-    ``lap_s`` ``(B, 1)`` (m along the lap), the flags ``on_line``, ``left_line``, ``stalled``,
-    ``collision``, ``lap_completed`` ``(B, 1)``, ``reward_terms/*`` and ``episode/*``
-    (:data:`EPISODE_KEYS`), plus ``reward``, ``done``, ``terminated``, ``truncated``.
-    """
+    """Batched line following: observation, action and reward in docs/line.md; the outputs of every
+    reset and step (the flags :data:`FLAG_KEYS`, ``episode/*`` :data:`EPISODE_KEYS`) in its "Env outputs"."""
 
     # For torchnav.record: the flags that say why an episode terminated, in order of precedence.
     end_reasons = ("collision", "left_line", "stalled")

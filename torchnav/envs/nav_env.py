@@ -1,10 +1,6 @@
-"""TorchRL environment for the navigation task: a thin wrapper around ``NavTask``.
-
-``batch_size=(num_envs,)``; specs made in one place (``_make_specs``); partial
-resets through the ``"_reset"`` mask; an explicit ``torch.Generator`` seeded by
-``set_seed``. Per-episode statistics are running values under ``"episode"``:
-read them where ``done`` is set.
-"""
+"""TorchRL environment for the navigation task: a :class:`~torchnav.envs.base.BatchedEnv` around
+``NavTask`` that also keeps the curriculum. Per-episode statistics are running values under
+``"episode"``: read them where ``done`` is set."""
 
 from __future__ import annotations
 

@@ -1,18 +1,8 @@
 """Occupancy images -> axis-aligned boxes, and the PNG mask reader shared with line tracks.
 
-A map's ``occupancy:`` image is thresholded to a bool mask, and the occupied
-pixels are merged into rectangles: each row is split into runs of occupied
-pixels, and a run extends the rectangle above it when the row above has a run
-over exactly the same columns. Every occupied pixel lies in exactly one
-rectangle and no rectangle covers a free pixel, so **the union of the boxes
-equals the occupied pixels exactly** (and the boxes do not overlap). The cover
-is greedy, not minimal: a 200 x 200 floor plan gives hundreds of boxes, not
-40,000, but pixel noise gives about one box per noisy run.
-
-Pixel ``(row, col)`` with row 0 at the top of the image covers world x in
-``[ox + col * res, ox + (col + 1) * res]`` and y in ``[oy + (H - row - 1) * res,
-oy + (H - row) * res]``, where ``(ox, oy)`` is the world position of the image's
-lower-left corner and ``res`` the pixel size in m.
+A map's ``occupancy:`` image is thresholded to a bool mask and its occupied pixels are merged
+into disjoint rectangles whose union is exactly the occupied pixels. The pixel-to-world layout
+(row 0 at the top) and the greedy cover: docs/maps.md, "Occupancy images".
 """
 
 from __future__ import annotations

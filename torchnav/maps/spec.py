@@ -13,7 +13,7 @@ from typing import Any
 import torch
 
 from torchnav.sim.camera import ObstacleStyles
-from torchnav.sim.state import World, make_world
+from torchnav.sim.state import World, make_world, pad_world
 
 
 class MapError(ValueError):
@@ -74,22 +74,11 @@ class MovingCircles:
 
 @dataclass(frozen=True)
 class MapSpec:
-    """A validated map. Geometry is in world metres, in the layouts of :class:`World`.
-
-    Attributes:
-        name: map name (``name:`` in the file, else the file stem).
-        source: path of the file it was read from.
-        size: ``(w, h)`` in m; the world spans ``[-w/2, w/2] x [-h/2, h/2]``.
-        segments: walls ``(x1, y1, x2, y2)`` in m: ``walls`` (``boundary`` already expanded), then
-            the edges of ``polygons``.
-        circles: fixed circles ``(cx, cy, r)`` in m.
-        boxes: fixed boxes ``(cx, cy, half_x, half_y, yaw)``: HALF extents in m, yaw in rad;
-            ``boxes``, then the boxes covering the ``occupancy`` image.
-        random_boxes / random_circles: what the task re-places on reset, or None.
-        moving_circles: the moving discs (or boxes: ``moving_boxes``) the task places on reset, or None.
-        styles: the camera heights and colours of the fixed circles and boxes that declare
-            ``height`` or ``color`` (slot ``i`` of a kind is its ``i``-th fixed obstacle).
-    """
+    """A validated map. Geometry is in world metres, in the layouts of :class:`World`; the fields are
+    tabled in docs/maps.md, "Loading a map". ``moving_circles``: the moving discs (or boxes:
+    ``moving_boxes``) the task places on reset, or None. ``styles``: the camera heights and colours
+    of the fixed circles and boxes that declare ``height`` or ``color`` (slot ``i`` of a kind is its
+    ``i``-th fixed obstacle)."""
 
     name: str
     source: str
@@ -132,35 +121,11 @@ class MapSpec:
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
     ) -> World:
-        """The map's world for ``batch_size`` envs.
-
-        Every env holds the fixed obstacles. ``boxes`` is ``(B, n_fixed_boxes +
-        random_boxes.count, 5)``: the fixed boxes first, then zeroed slots with
-        ``box_mask`` False that the task fills (and switches on) at reset.
-        ``circles`` is laid out the same way with ``random_circles``.
-        """
+        """The map's world for ``batch_size`` envs: the fixed obstacles in every env, then the random
+        objects' slots, zeroed and masked off until the task fills them at reset (docs/maps.md,
+        "What build_world makes")."""
         fixed = make_world(batch_size, self.segments, self.circles, self.boxes, device=device, dtype=dtype)
-        n_rb = self.random_boxes.count if self.random_boxes else 0
-        n_rc = self.random_circles.count if self.random_circles else 0
-
-        def pad(t: torch.Tensor, mask: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-            return (
-                torch.cat([t, t.new_zeros(batch_size, n, t.shape[-1])], dim=1),
-                torch.cat([mask, mask.new_zeros(batch_size, n)], dim=1),
-            )
-
-        boxes, box_mask = pad(fixed.boxes, fixed.box_mask, n_rb)
-        circles, circle_mask = pad(fixed.circles, fixed.circle_mask, n_rc)
-        return World(
-            segments=fixed.segments,
-            segment_mask=fixed.segment_mask,
-            circles=circles,
-            circle_mask=circle_mask,
-            boxes=boxes,
-            box_mask=box_mask,
-            batch_size=[batch_size],
-            device=device,
-        )
+        return pad_world(fixed, circles=self.n_circle_slots, boxes=self.n_box_slots)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain python types (lists, floats, None) for logging and config dumps."""

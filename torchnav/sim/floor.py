@@ -22,12 +22,8 @@ FLOOR_MODES = ("analog", "binary", "smooth")
 
 @dataclass(frozen=True)
 class FloorSensorParams:
-    """A straight array of ``count`` downward sensors across the robot's front.
-
-    Sensor ``i`` sits at ``(forward, -(count - 1) * spacing / 2 + i * spacing)`` in the
-    robot frame (x forward, y left): sensor 0 is the rightmost, the last the
-    leftmost (counter-clockwise order, like lidar rays).
-    """
+    """A straight array of ``count`` downward sensors across the robot's front, sensor 0 the
+    rightmost (docs/line.md, "Sensor model")."""
 
     count: int = 5  # number of sensors
     spacing: float = 0.015  # m between neighbouring sensor centres
