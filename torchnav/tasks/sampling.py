@@ -130,12 +130,8 @@ def place_random_objects(
     if nb + nc == 0:
         return world
     # Forget the previous episode's random objects: candidates are tested against fixed obstacles only.
-    fixed = World(
-        segments=world.segments, segment_mask=world.segment_mask,
-        circles=world.circles, circle_mask=torch.cat((world.circle_mask[:, :nc0], torch.zeros_like(world.circle_mask[:, nc0:])), 1),
-        boxes=world.boxes, box_mask=torch.cat((world.box_mask[:, :nb0], torch.zeros_like(world.box_mask[:, nb0:])), 1),
-        batch_size=[n],
-    )
+    fixed = world.replace(circle_mask=torch.cat((world.circle_mask[:, :nc0], torch.zeros_like(world.circle_mask[:, nc0:])), 1),
+                          box_mask=torch.cat((world.box_mask[:, :nb0], torch.zeros_like(world.box_mask[:, nb0:])), 1))
     xmin, ymin, xmax, ymax = spec.bounds
     m = nb + nc
     # All candidates of all objects at once: (n, m, k).
@@ -188,7 +184,7 @@ def place_random_objects(
         new = torch.cat((torch.stack(centres[nb:], 1), rad.gather(2, idx)), -1)
         circles = torch.cat((circles[:, :nc0], new, circles[:, nc0 + nc :]), 1)
         circle_mask = torch.cat((circle_mask[:, :nc0], torch.stack(found_all[nb:], 1), circle_mask[:, nc0 + nc :]), 1)
-    return World(segments=world.segments, segment_mask=world.segment_mask, circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask, batch_size=[n], device=world.device)
+    return world.replace(circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask)
 
 
 @dataclass(frozen=True)
