@@ -69,21 +69,12 @@ def make_worlds(
     anywhere_goals: float = 0.0,
     below_level: float = 0.0,
 ) -> WorldBatch:
-    """``num_envs`` worlds of one family, each with a start and a reachable goal.
-
-    ``family``: a name of :data:`FAMILIES` (``"rooms"``, ``"corridors"``, ``"cave"``,
-    ``"forest"``, ``"open"``) or ``"map:<name>"`` for a shipped map (its fixed obstacles;
-    random-object slots stay masked off). ``difficulty``: a number in [0, 1] or a
-    ``(num_envs,)`` tensor, per env. ``generator``: the only source of randomness
-    (same seed, same worlds); worlds are made on its device unless ``device`` is given
-    (it must then be of the same type). ``robot_radius`` (m): the disc that every
-    start-goal path is planned for. ``anywhere_goals``: the fraction of envs (drawn per env)
-    whose goal lies anywhere reachable, at least 0.5 m of path away, instead of in the
-    difficulty's band (:func:`~torchnav.worlds.place_episodes`); at 0 no number is drawn for
-    it, so the worlds are those of earlier versions. ``below_level``: the fraction of envs
-    (drawn per env) whose difficulty is drawn uniformly below the given one, in ``[0, d)``
-    (a curriculum keeps easier worlds in training as it rises); the batch's ``difficulty``
-    holds each env's own. Worlds of one family share their slot counts.
+    """``num_envs`` worlds of one family (a name of :data:`FAMILIES` or ``"map:<name>"``), each with a
+    start and a reachable goal; the arguments up to ``anywhere_goals``: docs/worlds.md, "Generating
+    a batch". At ``anywhere_goals=0`` no number is drawn for it, so the worlds are those of earlier
+    versions. ``below_level``: the fraction of envs (drawn per env) whose difficulty is drawn
+    uniformly in ``[0, d)`` (a curriculum keeps easier worlds in training as it rises); the batch's
+    ``difficulty`` holds each env's own. Worlds of one family share their slot counts.
     """
     for name, share in (("anywhere_goals", anywhere_goals), ("below_level", below_level)):
         if not 0.0 <= share <= 1.0:
@@ -111,15 +102,10 @@ def mix_worlds(
     dtype: torch.dtype = torch.float32,
     **placement: float,
 ) -> WorldBatch:
-    """``num_envs`` worlds whose family is drawn per env from ``families``.
-
-    ``families``: names as for :func:`make_worlds` (drawn uniformly) or a mapping of
-    name to weight (drawn in proportion). ``difficulty``: as for :func:`make_worlds`, or a
-    mapping of family name to its own difficulty (a number or 0-d tensor; a per-family
-    curriculum). ``placement``: ``robot_radius``, ``anywhere_goals`` and ``below_level`` as for :func:`make_worlds`. Each family is generated once for all of
-    its envs; obstacle slots are padded to the largest count of each kind
-    (:func:`~torchnav.sim.cat_worlds`), and envs keep the order of the draw.
-    """
+    """``num_envs`` worlds whose family is drawn per env from ``families`` (names, drawn uniformly, or
+    ``{name: weight}``; docs/worlds.md, "Several families in one batch"). ``difficulty``: as for
+    :func:`make_worlds`, or ``{family: difficulty}`` (a per-family curriculum). ``placement``:
+    ``robot_radius``, ``anywhere_goals`` and ``below_level`` as for :func:`make_worlds`."""
     names = list(families)
     if not names:
         raise ValueError("mix_worlds needs at least one family")
