@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from torchnav.config import ConfigError, TaskConfig, from_dict, merge, to_dict
+from torchnav.config import ConfigError, TaskConfig, fields_as, from_dict, merge, to_dict
 from torchnav.tasks import NavConfig
 from torchnav.tasks.config import CurriculumConfig, LidarConfig, RobotConfig
 
@@ -122,6 +122,17 @@ def test_task_config_sections_default_to_their_own_defaults():
     assert a.robot is not b.robot  # a fresh section per config
     assert Toy.from_dict({"robot": {"dt": 0.05}}).robot.dt == 0.05
     assert NavConfig().robot == RobotConfig() and NavConfig().curriculum == CurriculumConfig()
+
+
+def test_fields_as_copies_the_fields_both_dataclasses_have():
+    from torchnav.sim import ImuParams, LidarParams
+    from torchnav.tasks.config import ImuConfig
+
+    imu = fields_as(ImuParams, ImuConfig(enabled=True, gyro_noise=0.1, rate=50.0))  # `enabled` is not an ImuParams field
+    assert imu == ImuParams(gyro_noise=0.1, rate=50.0)
+    lidar = fields_as(LidarParams, LidarConfig(n_rays=40, fov_deg=90.0, scan="sectors"), fov=math.pi / 2)  # values win
+    assert (lidar.n_rays, lidar.fov, lidar.scan, lidar.n_sectors) == (40, math.pi / 2, "sectors", 20)
+    assert NavConfig.from_dict({"lidar": {"fov_deg": 270.0}}).sim_params().lidar.fov == pytest.approx(1.5 * math.pi)
 
 
 # --------------------------------------------------------------------------- to_dict, merge, YAML
