@@ -1,11 +1,8 @@
-"""Planner plus tracker: A* or RRT-Connect waypoints per env at reset, a batched PID tracker after.
-
-``PlannerController`` needs the worlds of the env it drives (the boxes move on every
-reset), so it must be bound first: ``controller.bind(env)`` (``torchnav.evaluation``
-does this for every env it creates). On each call it plans, on the CPU and one env at
-a time, for every env whose episode has just started (``("episode", "length") == 0``)
-or whose goal changed, then steers all envs at once towards their current waypoint.
-"""
+"""Planner plus tracker: A* or RRT-Connect waypoints per env at reset, a batched PID tracker after
+(docs/controllers.md, "astar and rrt"). ``PlannerController`` reads the worlds of the env it
+drives, so it must be bound first (``controller.bind(env)``; ``torchnav.evaluation`` does it); it
+plans for every env whose episode has just started (``("episode", "length") == 0``) or whose goal
+changed."""
 
 from __future__ import annotations
 

@@ -34,16 +34,10 @@ def unicycle_to_wheels(twist: Tensor, track_width: float) -> Tensor:
 
 
 def apply_limits(cmd: Tensor, prev: Tensor, params: SimParams, env: "EnvParams | None" = None) -> Tensor:
-    """Clamp a commanded twist ``(B, 2)`` to the speed limits and, if finite, to the
-    acceleration limits relative to the previous twist ``prev`` ``(B, 2)``.
-
-    Non-finite commands (NaN, inf) are replaced by 0 before limiting, i.e. the robot
-    is told to stop, so one bad action never puts NaN into the state. The
-    environment layer rejects such actions with an error by default.
-
-    ``env`` (``randomize.EnvParams``) gives per-env limits instead of ``params``'
-    (``v_min`` scales with ``v_max``).
-    """
+    """Clamp a commanded twist ``(B, 2)`` to the speed limits and, if finite, to the acceleration
+    limits relative to the previous twist ``prev`` ``(B, 2)``; a non-finite entry becomes 0 (stop)
+    first (docs/sim.md, "Kinematics"). ``env`` (``randomize.EnvParams``) gives per-env limits
+    instead of ``params``' (``v_min`` scales with ``v_max``)."""
     cmd = torch.where(torch.isfinite(cmd), cmd, torch.zeros_like(cmd))
     if env is not None:
         v_max, w_max = env.v_max, env.omega_max

@@ -1,11 +1,9 @@
 """The line-following task: random starts along a track, reflectance observations with history,
 progress reward along the lap, termination when the robot leaves the line or stops.
 
-``LineTask.step`` and ``LineTask.reset`` are pure functions of an explicit
-``LineState`` (no TorchRL here). Progress is the arc length gained along the
-track's lap path, found by projecting the robot centre onto the path within a
-window around its previous position, so crossings never make it jump and rocking
-back and forth earns nothing.
+``LineTask.step`` and ``LineTask.reset`` are pure functions of an explicit ``LineState`` (no
+TorchRL here). Progress is the arc length gained along the lap path (``tracks.project_on_path``:
+crossings never make it jump, and rocking back and forth earns nothing).
 """
 
 from __future__ import annotations

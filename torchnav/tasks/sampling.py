@@ -3,11 +3,8 @@
 Each sampler draws ``K`` candidates per env at once, tests them all with one
 batched geometry call, and keeps a valid one. When no candidate of an env is
 valid, each sampler has a defined fallback (documented per function), so a
-reset never blocks and never loops an unbounded number of times.
-
-Memory stays bounded on maps with hundreds of obstacles: candidate clearances
-are computed in chunks of candidates (see :func:`_clearance`), so no
-``(n, candidates, obstacles)`` temporary exceeds ``_CHUNK_ELEMENTS`` elements.
+reset never blocks and never loops an unbounded number of times. Memory stays
+bounded on maps with hundreds of obstacles (:func:`_clearance`).
 """
 
 from __future__ import annotations
