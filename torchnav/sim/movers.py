@@ -242,8 +242,7 @@ def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tenso
 def mover_world(movers: Tensor, mask: Tensor) -> World:
     """The movers as a :class:`World` of circles ``[x, y, radius]`` and, for rows with box columns,
     boxes ``[x, y, half_x, half_y, yaw]`` (slot ``i`` of both kinds is mover ``i``, masked in the
-    kind it is not); no walls. Stored component-major (``planar_rows``), so the lidar and the
-    camera read them without a copy."""
+    kind it is not); no walls; stored component-major (``planar_rows``): read without a copy."""
     b = movers.shape[0]
     circles = torch.stack((movers[..., 0], movers[..., 1], movers[..., 4])).permute(1, 2, 0)
     boxes, box_mask, circle_mask = movers.new_zeros(b, 0, 5), mask[:, :0], mask
