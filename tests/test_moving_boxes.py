@@ -76,6 +76,18 @@ def test_moving_boxes_bounce_inside_their_region_and_keep_shape():
     assert world.circle_mask.tolist() == [[True, False]] * 2 and world.box_mask.tolist() == [[False, True]] * 2
 
 
+
+def test_mover_world_is_component_major_with_the_movers_values():
+    """The lidar and camera read mover_world's rows without a copy (``planar_rows``: each component a contiguous block)."""
+    from torchnav.sim.state import is_planar
+
+    movers = make_movers(3, [[0.0, 0.0, 0.7, -0.4, 0.2]], boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
+    s = init_state(torch.zeros(3, 3), make_world(3), SimParams(), movers=movers)
+    world = mover_world(s.movers, s.mover_mask)
+    assert is_planar(world.circles) and is_planar(world.boxes)
+    assert torch.allclose(world.circles[2], torch.tensor([[0.0, 0.0, 0.2], [0.5, 0.5, math.hypot(0.3, 0.2)]]))
+    assert torch.allclose(world.boxes[2, 1], torch.tensor([0.5, 0.5, 0.3, 0.2, 0.4]))
+
 def test_make_movers_rejects_bad_boxes():
     with pytest.raises(ValueError, match="shape"):
         make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, 0.5]])

@@ -242,14 +242,14 @@ def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tenso
 def mover_world(movers: Tensor, mask: Tensor) -> World:
     """The movers as a :class:`World` of circles ``[x, y, radius]`` and, for rows with box columns,
     boxes ``[x, y, half_x, half_y, yaw]`` (slot ``i`` of both kinds is mover ``i``, masked in the
-    kind it is not); no walls."""
+    kind it is not); no walls; stored component-major (``planar_rows``): read without a copy."""
     b = movers.shape[0]
-    circles = torch.stack((movers[..., 0], movers[..., 1], movers[..., 4]), -1)
+    circles = torch.stack((movers[..., 0], movers[..., 1], movers[..., 4])).permute(1, 2, 0)
     boxes, box_mask, circle_mask = movers.new_zeros(b, 0, 5), mask[:, :0], mask
     if movers.shape[-1] > N_MOVER_FIELDS:
         hx, hy, yaw = (movers[..., N_MOVER_FIELDS + k] for k in range(3))
         is_box = (hx > 0) | (hy > 0)
-        boxes = torch.stack((movers[..., 0], movers[..., 1], hx, hy, yaw), -1)
+        boxes = torch.stack((movers[..., 0], movers[..., 1], hx, hy, yaw)).permute(1, 2, 0)
         box_mask, circle_mask = mask & is_box, mask & ~is_box
     return World(
         segments=movers.new_zeros(b, 0, 4), segment_mask=mask[:, :0],
