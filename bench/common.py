@@ -9,7 +9,7 @@ Method, shared by every benchmark:
 
 * a run of ``steps`` calls is timed as a whole (``CLOCK``: ``time.perf_counter``, with a
   device synchronisation before and after on CUDA; a script may set it to
-  ``time.process_time``, see ``sim_throughput.py --cpu-time``); ``warmup`` untimed
+  ``time.process_time``: the option ``--cpu-time``); ``warmup`` untimed
   calls come first;
 * the run is repeated ``repeats`` times; the reported rate is the median of
   the per-run rates, with the min and max as the spread;
@@ -89,16 +89,24 @@ def print_header(title: str, device: str, log, json_bench: str | None = None) ->
 
 def start(args, title: str, device: str, json_bench: str | None = None):
     """Set ``args.threads`` torch threads and print the header (:func:`print_header`); returns the stream
-    for tables: stderr with ``--json``, whose stdout then holds only JSON lines."""
+    for tables: stderr with ``--json``, whose stdout then holds only JSON lines. ``--cpu-time`` sets ``CLOCK``."""
+    global CLOCK
     set_threads(args.threads)
+    if args.cpu_time:
+        CLOCK = time.process_time
+        title += " (rates in CPU time: --cpu-time)"
     log = sys.stderr if args.json else sys.stdout
     print_header(title, device, log, json_bench if args.json else None)
     return log
 
 
 def timing_args(p, run_seconds: float, warmup: int = 5) -> None:
-    """The timing options every throughput bench takes: ``--threads``, ``--steps``, ``--run-seconds``, ``--repeats``, ``--warmup``."""
+    """The timing options every throughput bench takes: ``--threads``, ``--steps``, ``--run-seconds``, ``--repeats``, ``--warmup``,
+    ``--cpu-time``."""
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    p.add_argument("--cpu-time", action="store_true",
+                   help="time runs in this process's CPU time (time.process_time) instead of wall time: on a shared "
+                        "machine, time spent waiting for a core is not counted (meaningful with --threads 1 on CPU)")
     p.add_argument("--steps", type=int, default=0, help="steps per timed run (default: calibrated to --run-seconds)")
     p.add_argument("--run-seconds", type=float, default=run_seconds, help=f"target wall time of one timed run (default {run_seconds:g})")
     p.add_argument("--repeats", type=int, default=5, help="timed runs (collector: timed batches); the median rate is reported (default 5)")

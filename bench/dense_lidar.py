@@ -20,6 +20,7 @@ gives exactly (``scan_is_exact``, after the timed steps).
     python bench/dense_lidar.py                  # 4,096 envs, eager and compiled
     python bench/dense_lidar.py --quick          # a seconds-long smoke run (64 envs, eager)
     python bench/dense_lidar.py --num-envs 1024 --modes compiled --json
+    python bench/dense_lidar.py --threads 1 --cpu-time --loads standard,dense-sectors --modes compiled   # a shared machine
 """
 
 from __future__ import annotations
@@ -82,7 +83,8 @@ def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) ->
     params = replace(SimParams(), lidar=LOADS[load])
     state, world, actions = make_load(num_envs, "cpu", args.seed, params) if load == "standard" else make_dense(num_envs, params, args.seed)
     rec: dict[str, Any] = {"bench": "dense_lidar", "load": load, "mode": mode, "num_envs": num_envs, "obstacles": int(world.segment_mask[0].sum() + world.circle_mask[0].sum() + world.box_mask[0].sum()),
-                           "readings": params.lidar.n_rays, "scan": params.lidar.scan, "compile_s": None}
+                           "readings": params.lidar.n_rays, "scan": params.lidar.scan, "compile_s": None,
+                           "threads": torch.get_num_threads(), "clock": "cpu" if args.cpu_time else "wall"}
 
     def fn(s, a):
         return step(s, a, world, params)

@@ -325,9 +325,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--stages", action="store_true", help="also time each stage of the step (at 4096 envs or the largest size below)")
     p.add_argument("--options", type=lambda s: [x for x in s.split(",") if x], default=None,
                    help=f"comma-separated simulator options to time next to the plain step, from {','.join(o for o in OPTIONS if o != 'plain')}")
-    p.add_argument("--cpu-time", action="store_true",
-                   help="time runs in this process's CPU time (time.process_time) instead of wall time: on a shared "
-                        "machine, time spent waiting for a core is not counted (meaningful with --threads 1 on CPU)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object per line as well as the tables")
     p.add_argument("--quick", action="store_true", help="tiny sizes, few steps, eager modes only: a smoke test")
