@@ -80,7 +80,7 @@ def test_imu_and_camera_params_reject_bad_values():
     for bad in ({"accel_noise": -0.1}, {"gyro_bias_walk": -1.0}, {"rate": 0.0}, {"gyro_noise": math.nan}):
         with pytest.raises(ValueError, match="imu"):
             ImuParams(**bad)
-    for bad in ({"n_cols": 0}, {"n_rows": 0}, {"fov": math.pi}, {"max_range": 0.0}, {"wall_color": (0, 0, 300)}, {"height": -1.0}):
+    for bad in ({"n_cols": 0}, {"n_rows": 0}, {"fov": math.pi}, {"max_range": 0.0}, {"wall_color": (0, 0, 300)}, {"box_color": (True, 0, 0)}, {"height": -1.0}):
         with pytest.raises(ValueError, match="camera"):
             CameraParams(**bad)
 

@@ -19,6 +19,7 @@ from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_i
                          shipped_folder, shipped_names, show)
 from .occupancy import ImageError, mask_boxes, read_mask
 from ..sim.camera import ObstacleStyles
+from ..sim.params import is_rgb
 from .spec import MOTIONS, MapError, MapSpec, MovingCircles, RandomBoxes, RandomCircles
 
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
@@ -78,7 +79,7 @@ def _style(ctx: Ctx, d: dict, key: str) -> tuple:
     color = None
     if "color" in d:
         c = d["color"]
-        if not (isinstance(c, list) and len(c) == 3 and all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 255 for x in c)):
+        if not (isinstance(c, list) and is_rgb(c)):
             raise ctx.fail(f"{key}.color", f"expected [r, g, b] with integers in [0, 255], got {show(c)}")
         color = tuple(c)
     return (height, color)

@@ -84,6 +84,11 @@ class ImuParams:
 RGB = tuple[int, int, int]
 
 
+def is_rgb(c: object) -> bool:
+    """Whether ``c`` is three integers (not bools) in [0, 255], a colour of the camera and of maps."""
+    return isinstance(c, (list, tuple)) and len(c) == 3 and all(isinstance(x, int) and not isinstance(x, bool) and 0 <= x <= 255 for x in c)
+
+
 @dataclass(frozen=True)
 class CameraParams:
     """A forward pinhole camera rendered by ray casting the 2D world (``camera.py``); its column
@@ -117,7 +122,7 @@ class CameraParams:
             _require(getattr(self, name) > 0.0, f"camera.{name} must be > 0 m, got {getattr(self, name)!r}")
         for name in ("wall_color", "circle_color", "box_color", "mover_color", "floor_color", "sky_color"):
             c = getattr(self, name)
-            _require(len(c) == 3 and all(isinstance(x, int) and 0 <= x <= 255 for x in c), f"camera.{name} must be 3 ints in [0, 255], got {c!r}")
+            _require(is_rgb(c), f"camera.{name} must be 3 ints in [0, 255], got {c!r}")
 
     @property
     def focal(self) -> float:
