@@ -66,7 +66,7 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
         loc, scale = observation_stats(env, int(tc.obs_stats_steps))
         loc_net.set_normalization(loc, scale)
         value_net.set_normalization(loc, scale)
-    params = TensorDictModule(GaussianParams(loc_net, act_size, tc.init_log_std), in_keys=["observation"], out_keys=["loc", "scale"])
+    params = TensorDictModule(GaussianParams(loc_net, act_size, tc.init_log_std).to(device), in_keys=["observation"], out_keys=["loc", "scale"])
     policy = ProbabilisticActor(params, in_keys=["loc", "scale"], spec=env.action_spec_unbatched, distribution_class=TanhNormal,
                                 return_log_prob=True)
     critic = ValueOperator(value_net, in_keys=["observation"])

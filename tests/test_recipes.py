@@ -362,3 +362,23 @@ def test_movers_policy_evaluates_on_its_map_and_config_validates(monkeypatch):
     assert cfg.train == base.train and cfg.env.num_envs == base.env.num_envs
     out = evaluate.main(["checkpoints/ppo_movers_actor.pt", "--episodes", "20", "--threads", "1"])
     assert out["map"] == "recipes/maps/arena_movers.yaml" and out["success"]["rate"] >= 0.8
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("recipe", sorted(TINY_ARGS) + sorted(LINE_ARGS))
+def test_recipe_on_cuda(tmp_path, recipe):
+    """Every recipe trains, evaluates and saves on a GPU, and its actor.pt runs on the CPU afterwards.
+
+    The first GPU run of PPO failed here: its log-std parameter stayed on the CPU."""
+    from torchnav.policy import load_policy
+
+    run = tmp_path / "run"
+    args = TINY_ARGS.get(recipe) or LINE_ARGS[recipe]
+    res = _run(recipe, args + ["device=cuda", "train.total_frames=512", f"logger.run_dir={run}"])
+    assert res["frames"] == 512
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["eval"]["episodes"] == 16
+    sp = load_policy(run / "actor.pt")
+    out = sp.actor(torch.zeros(3, sp.actor.obs_size))  # the saved weights load and run on the CPU
+    assert out.device.type == "cpu" and torch.isfinite(out).all()
