@@ -429,6 +429,7 @@ def test_nav_env_from_config():
     assert set(env.observation_spec["reward_terms"].keys()) == set(PRESETS["progress"])
 
 
+@pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_env_on_cuda():
     env = make_nav_env("warehouse", num_envs=8, device="cuda")
