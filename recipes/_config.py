@@ -30,8 +30,8 @@ from torchnav.tasks import LineConfig, NavConfig
 # --------------------------------------------------------------------------- what a field allows
 
 
-def count(lo: int) -> Any:
-    return checked(lambda v: is_int(v) and v >= lo, f"an integer >= {lo}")
+def count(lo: int, default: Any = dataclasses.MISSING) -> Any:
+    return checked(lambda v: is_int(v) and v >= lo, f"an integer >= {lo}", default)
 
 
 def positive() -> Any:
@@ -58,8 +58,8 @@ def flag() -> Any:
     return checked(lambda v: isinstance(v, bool), "true or false")
 
 
-def one_of(*options: str) -> Any:
-    return checked(lambda v: v in options, " or ".join(options))
+def one_of(*options: str, default: Any = dataclasses.MISSING, hint: str = "") -> Any:
+    return checked(lambda v: v in options, " or ".join(options) + hint, default)
 
 
 def sizes() -> Any:
@@ -226,8 +226,8 @@ class PPOTrain(Discrete, Collected):
     critic_coeff: float = non_negative()
     init_log_std: float = real()
     # defaults so that configs saved before these keys existed resume as feed-forward runs
-    recurrent: str = checked(lambda v: v in RECURRENT, " or ".join(RECURRENT), default="off")  # off | gru (docs/training.md)
-    recurrent_hidden: int = checked(lambda v: is_int(v) and v >= 1, "an integer >= 1", default=128)  # GRU state size
+    recurrent: str = one_of(*RECURRENT, default="off", hint=' (in a YAML file quote "off": unquoted it reads as false)')  # docs/training.md
+    recurrent_hidden: int = count(1, default=128)  # size of the GRU state (train.recurrent: gru)
 
 
 @dataclass(frozen=True)
