@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 from _train import Trainer  # noqa: E402
 
-from torchnav.policy import STATE_KEY, Actor, RecurrentActor, RecurrentStep  # noqa: E402
+from torchnav.policy import STATE_KEY, Actor, RecurrentActor, RecurrentStep, with_state  # noqa: E402
 
 
 def scale_of(log_std: torch.Tensor, loc: torch.Tensor) -> torch.Tensor:
@@ -138,7 +138,7 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
         out["log_std"] = std.log_std.detach().mean()
         return out
 
-    return t.train(t.collector(policy), update)
+    return t.train(t.collector(policy, env=with_state(env, loc_net) if recurrent else None), update)
 
 
 if __name__ == "__main__":

@@ -172,11 +172,22 @@ class RecurrentActor(_Normalised):
         return {**super().spec(), "state_size": self.state_size}
 
 
+def with_state(env: Any, actor: RecurrentActor) -> Any:
+    """``env`` with the state of ``actor`` that each env carries in its specs (TorchRL's
+    ``TensorDictPrimer``: zeros at a reset), so that a collector's ``step_mdp`` carries it from
+    one step to the next (it drops entries the specs do not name). The env itself is shared."""
+    from torchrl.data import Unbounded
+    from torchrl.envs import TensorDictPrimer, TransformedEnv
+
+    return TransformedEnv(env, TensorDictPrimer({STATE_KEY: Unbounded(shape=(actor.state_size,), device=env.device)}, expand_specs=True))
+
+
 class RecurrentStep(TensorDictModuleBase):
     """A :class:`RecurrentActor` on TensorDicts: reads ``"observation"``, the state each env carries
     (``"recurrent_state"``; zeros where missing) and ``("episode", "length")`` (0 at an episode's
     first step: the state is reset there), writes ``out_key`` and ``("next", "recurrent_state")``,
-    which the env's step and ``step_mdp`` carry to the next step's TensorDict.
+    which the env's step carries to the next step's TensorDict (a collector's ``step_mdp`` only
+    through an env made by :func:`with_state`).
 
     One step of a ``(B,)`` TensorDict (collection, evaluation); under TorchRL's
     ``set_recurrent_mode(True)`` a ``(B, T)`` TensorDict of whole per-env sequences, started from
@@ -296,4 +307,4 @@ def load_policy(path: str | Path, map_location: str | torch.device = "cpu") -> S
                        extra={k: v for k, v in ck.items() if k not in known})
 
 
-__all__ = ["Actor", "FORMAT", "RECURRENT_FORMAT", "RecurrentActor", "RecurrentStep", "SavedPolicy", "load_policy", "policy_payload", "save_policy", "to_policy"]
+__all__ = ["Actor", "FORMAT", "RECURRENT_FORMAT", "RecurrentActor", "RecurrentStep", "SavedPolicy", "with_state", "load_policy", "policy_payload", "save_policy", "to_policy"]
