@@ -23,14 +23,15 @@ from typing import Any
 import torch
 
 from torchnav.config import ConfigError, checked, is_int, is_number, raise_problems
+from torchnav.policy import RECURRENT
 from torchnav.tasks import LineConfig, NavConfig
 
 
 # --------------------------------------------------------------------------- what a field allows
 
 
-def count(lo: int) -> Any:
-    return checked(lambda v: is_int(v) and v >= lo, f"an integer >= {lo}")
+def count(lo: int, default: Any = dataclasses.MISSING) -> Any:
+    return checked(lambda v: is_int(v) and v >= lo, f"an integer >= {lo}", default)
 
 
 def positive() -> Any:
@@ -57,8 +58,8 @@ def flag() -> Any:
     return checked(lambda v: isinstance(v, bool), "true or false")
 
 
-def one_of(*options: str) -> Any:
-    return checked(lambda v: v in options, " or ".join(options))
+def one_of(*options: str, default: Any = dataclasses.MISSING, hint: str = "") -> Any:
+    return checked(lambda v: v in options, " or ".join(options) + hint, default)
 
 
 def sizes() -> Any:
@@ -224,6 +225,9 @@ class PPOTrain(Discrete, Collected):
     entropy_coeff: float = non_negative()
     critic_coeff: float = non_negative()
     init_log_std: float = real()
+    # defaults so that configs saved before these keys existed resume as feed-forward runs
+    recurrent: str = one_of(*RECURRENT, default="off", hint=' (in a YAML file quote "off": unquoted it reads as false)')  # docs/training.md
+    recurrent_hidden: int = count(1, default=128)  # size of the GRU state (train.recurrent: gru)
 
 
 @dataclass(frozen=True)
@@ -278,6 +282,12 @@ class Recipe:
             a, b = self.value(small), self.value(big)
             if a is not None and b is not None and a > b:
                 problems.append(f"{small}={a} must be at most {big}={b}")
+        steps = fpb // n if fpb is not None and fpb % n == 0 else None
+        mb = self.value("train.minibatch_size")
+        if self.value("train.recurrent") not in (None, "off") and steps and mb % steps:
+            problems.append(f"train.minibatch_size={mb} must be a multiple of the {steps} steps per env of a batch "
+                            f"(train.frames_per_batch / env.num_envs) with train.recurrent={self.value('train.recurrent')}: "
+                            "minibatches are whole per-env sequences")
         if self.device.startswith("cuda"):
             have = torch.cuda.device_count() if torch.cuda.is_available() else 0
             if (int(self.device.split(":")[1]) if ":" in self.device else 0) >= have:

@@ -92,12 +92,13 @@ class Trainer:
     def remaining_frames(self) -> int:
         return int(self.cfg.train.total_frames) - int(self.counters["frames"])
 
-    def collector(self, policy, random_start: bool = False) -> Collector | None:
-        """TorchRL's collector of the env over the remaining frames (None when none remain); with
-        ``random_start`` a run's first ``train.init_random_frames`` frames take random actions."""
+    def collector(self, policy, random_start: bool = False, env: Any = None) -> Collector | None:
+        """TorchRL's collector of the env (or ``env``, a transformed view of it) over the remaining frames
+        (None when none remain); with ``random_start`` a run's first ``train.init_random_frames`` frames
+        take random actions."""
         remaining, fpb = self.remaining_frames(), int(self.cfg.train.frames_per_batch)
         extra = {"init_random_frames": max(0, int(self.cfg.train.init_random_frames) - int(self.counters["frames"]))} if random_start else {}
-        return Collector(self.env, policy, frames_per_batch=fpb, total_frames=max(remaining, fpb), device=self.device,
+        return Collector(self.env if env is None else env, policy, frames_per_batch=fpb, total_frames=max(remaining, fpb), device=self.device,
                          auto_register_policy_transforms=False, **extra) if remaining > 0 else None
 
     def policy_meta(self, **extra: Any) -> dict[str, Any]:

@@ -6,7 +6,7 @@ on lap completion from random starts (``--track``, ``--laps``).
     python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
     python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to an MCAP file (--record-path)
 
-Accepts the ``actor.pt`` any recipe writes (format ``torchnav-actor-v2``, see
+Accepts the ``actor.pt`` any recipe writes (format ``torchnav-actor-v2``, or ``-v3`` for a recurrent policy; see
 ``torchnav/policy.py``) and the recipes' training checkpoints (``checkpoint.pt``).
 Episodes use seeds ``seed, seed+1, ...`` through the env generator, so the same
 arguments give the same scenarios for every policy.

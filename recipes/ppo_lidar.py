@@ -8,7 +8,9 @@ Reads top to bottom: config and env (``_train.Trainer``) -> observation statisti
 from a random-action rollout (baked into both networks as normalisation) -> a
 tanh-squashed Gaussian policy with a state-independent log-std and a value
 network -> ``ClipPPOLoss`` with GAE -> collector -> update (advantages over the
-whole batch, then `epochs` passes of shuffled minibatches). The shared loop in
+whole batch, then `epochs` passes of shuffled minibatches). With ``train.recurrent: gru`` the
+policy is a ``RecurrentActor`` (MLP -> GRU cell -> head; the value network stays feed-forward)
+whose state each env carries through collection, and minibatches are whole per-env sequences. The shared loop in
 ``recipes/_train.py`` does progress output, periodic evaluation, checkpoints and
 the final evaluation. Every config key is documented in recipes/configs/ppo_lidar.yaml.
 """
@@ -19,9 +21,9 @@ import sys
 from pathlib import Path
 
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator, set_recurrent_mode
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
@@ -29,7 +31,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 from _train import Trainer  # noqa: E402
 
-from torchnav.policy import Actor  # noqa: E402
+from torchnav.policy import STATE_KEY, Actor, RecurrentActor, RecurrentStep, with_state  # noqa: E402
+
+
+def scale_of(log_std: torch.Tensor, loc: torch.Tensor) -> torch.Tensor:
+    """The Gaussian's ``scale = exp(log_std)``, the same for every state, shaped like ``loc``."""
+    return log_std.clamp(-5.0, 1.0).exp().expand_as(loc)
 
 
 class GaussianParams(nn.Module):
@@ -42,7 +49,30 @@ class GaussianParams(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         loc = self.net(obs)
-        return loc, self.log_std.clamp(-5.0, 1.0).exp().expand_as(loc)
+        return loc, scale_of(self.log_std, loc)
+
+
+class GaussianScale(nn.Module):
+    """``loc -> scale = exp(log_std)``: the recurrent policy's scale (its ``loc`` comes from a ``RecurrentStep``)."""
+
+    def __init__(self, act_size: int, init_log_std: float) -> None:
+        super().__init__()
+        self.log_std = nn.Parameter(torch.full((act_size,), float(init_log_std)))
+
+    def forward(self, loc: torch.Tensor) -> torch.Tensor:
+        return scale_of(self.log_std, loc)
+
+
+def gaussian_policy(loc_net: Actor | RecurrentActor, act_size: int, init_log_std: float, action_spec) -> tuple[ProbabilisticActor, nn.Module]:
+    """The tanh-squashed Gaussian policy of ``loc_net`` (a ``RecurrentActor`` through a ``RecurrentStep``)
+    and the module holding its ``log_std``."""
+    if loc_net.recurrent:
+        std = GaussianScale(act_size, init_log_std).to(loc_net.obs_loc.device)
+        params = TensorDictSequential(RecurrentStep(loc_net, out_key="loc"), TensorDictModule(std, in_keys=["loc"], out_keys=["scale"]))
+    else:
+        std = GaussianParams(loc_net, act_size, init_log_std).to(loc_net.obs_loc.device)
+        params = TensorDictModule(std, in_keys=["observation"], out_keys=["loc", "scale"])
+    return ProbabilisticActor(params, in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal, return_log_prob=True), std
 
 
 @torch.no_grad()
@@ -60,15 +90,17 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
 
     # -- networks: both normalise observations with statistics of a random-action rollout -----
     obs_size, act_size = env.task.obs_size, 2
-    loc_net = Actor(obs_size, act_size, tc.hidden, tc.activation, output="linear").to(device)
+    recurrent = tc.recurrent != "off"
+    if recurrent:
+        loc_net = RecurrentActor(obs_size, act_size, tc.hidden, tc.activation, output="linear", state_size=tc.recurrent_hidden).to(device)
+    else:
+        loc_net = Actor(obs_size, act_size, tc.hidden, tc.activation, output="linear").to(device)
     value_net = Actor(obs_size, 1, tc.hidden, tc.activation, output="linear").to(device)
     if t.fresh:
         loc, scale = observation_stats(env, int(tc.obs_stats_steps))
         loc_net.set_normalization(loc, scale)
         value_net.set_normalization(loc, scale)
-    params = TensorDictModule(GaussianParams(loc_net, act_size, tc.init_log_std).to(device), in_keys=["observation"], out_keys=["loc", "scale"])
-    policy = ProbabilisticActor(params, in_keys=["loc", "scale"], spec=env.action_spec_unbatched, distribution_class=TanhNormal,
-                                return_log_prob=True)
+    policy, std = gaussian_policy(loc_net, act_size, tc.init_log_std, env.action_spec_unbatched)
     critic = ValueOperator(value_net, in_keys=["observation"])
 
     loss = ClipPPOLoss(policy, critic, clip_epsilon=tc.clip_epsilon, entropy_coeff=tc.entropy_coeff,
@@ -79,19 +111,23 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
     t.export_actor = lambda: loc_net.squashed()
 
     # -- update: advantages over the batch, then `epochs` passes of shuffled minibatches -------
+    # (the batch is (envs, steps); a recurrent policy's minibatches are whole rows: each env's
+    # steps in order, from the state stored at its first step, reset where an episode starts)
     mb = int(tc.minibatch_size)
     # what GAE and the loss read; indexing minibatches out of the whole batch (poses, reward
     # terms, episode statistics) cost more than the gradient steps themselves
-    keys = ("observation", "action", "action_log_prob", *(("next", k) for k in ("observation", "reward", "done", "terminated")))
+    keys = ("observation", "action", "action_log_prob", *(("next", k) for k in ("observation", "reward", "done", "terminated")),
+            *((STATE_KEY, ("episode", "length")) if recurrent else ()))
 
     def update(batch):
         batch = batch.select(*keys)
         with torch.no_grad():
             gae(batch)
-        flat = batch.reshape(-1)
+        rows, per = (batch, mb // batch.shape[-1]) if recurrent else (batch.reshape(-1), mb)
         for _ in range(int(tc.epochs)):
-            for idx in torch.randperm(flat.numel(), device=device).split(mb):
-                lv = loss(flat[idx])
+            for idx in torch.randperm(rows.shape[0], device=device).split(per):
+                with set_recurrent_mode(recurrent):
+                    lv = loss(rows[idx])
                 total = lv["loss_objective"] + lv["loss_critic"] + lv["loss_entropy"]
                 optim.zero_grad(set_to_none=True)
                 total.backward()
@@ -99,10 +135,10 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
                 optim.step()
                 t.counters["updates"] += 1
         out = {k: lv[k].detach() for k in ("loss_objective", "loss_critic", "loss_entropy")}  # read only when logged
-        out["log_std"] = params.module.log_std.detach().mean()
+        out["log_std"] = std.log_std.detach().mean()
         return out
 
-    return t.train(t.collector(policy), update)
+    return t.train(t.collector(policy, env=with_state(env, loc_net) if recurrent else None), update)
 
 
 if __name__ == "__main__":

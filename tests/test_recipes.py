@@ -36,6 +36,11 @@ TINY_ARGS = {
 }
 
 
+# smoke-and-resume cases: a recipe's TINY_ARGS, or another setting of one (case -> (recipe, args))
+CASES = {**{r: (r, a) for r, a in TINY_ARGS.items()},
+         "ppo_lidar_gru": ("ppo_lidar", TINY_ARGS["ppo_lidar"] + ["train.recurrent=gru", "train.recurrent_hidden=16"])}
+
+
 def _run(recipe, args):
     import importlib
 
@@ -46,10 +51,10 @@ def _td3(args):
     return _run("td3_lidar", args)
 
 
-@pytest.mark.parametrize("recipe", sorted(TINY_ARGS))
-def test_recipe_smoke_and_resume(tmp_path, recipe):
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_recipe_smoke_and_resume(tmp_path, case):
     run = tmp_path / "run"
-    tiny = TINY_ARGS[recipe]
+    recipe, tiny = CASES[case]
     res = _run(recipe, tiny + ["train.total_frames=512", f"logger.run_dir={run}"])
     assert res["frames"] == 512
     for f in ("config.yaml", "checkpoint.pt", "actor.pt", "summary.json", "episodes.mcap"):
@@ -69,6 +74,7 @@ def test_recipe_smoke_and_resume(tmp_path, recipe):
     from torchnav.policy import load_policy
 
     sp = load_policy(run / "actor.pt")
+    assert sp.actor.recurrent == (case == "ppo_lidar_gru")
     again = summarize(run_episodes(sp.policy, eval_config(sp.config()), 16, seed=20_000))
     assert again["success"]["count"] == summary["eval"]["success"]["count"]
     assert again["collision"]["count"] == summary["eval"]["collision"]["count"]

@@ -79,10 +79,11 @@ def _check_type(value: Any, tp: Any, where: str) -> Any:
     return value
 
 
-def checked(test: Callable[[Any], bool], allowed: str) -> Any:
-    """A required dataclass field whose value must pass ``test`` (its type included): ``from_dict``
-    reports a failure as ``key=value: must be <allowed>``, and any non-finite number as ``must be finite``."""
-    return dataclasses.field(metadata={"check": (test, allowed)})
+def checked(test: Callable[[Any], bool], allowed: str, default: Any = dataclasses.MISSING) -> Any:
+    """A dataclass field whose value must pass ``test`` (its type included), required unless given a
+    ``default``: ``from_dict`` reports a failure as ``key=value: must be <allowed>``, and any
+    non-finite number as ``must be finite``."""
+    return dataclasses.field(default=default, metadata={"check": (test, allowed)})
 
 
 def is_int(v: Any) -> bool:

@@ -103,6 +103,10 @@ def network_of(policy: SavedPolicy | Actor, action_table: torch.Tensor | None = 
             raise ValueError("the policy has non-finite parameters (NaN or inf); cannot export")
         return a
 
+    if actor.recurrent:
+        raise ValueError("recurrent (GRU) policies cannot be exported yet: the ONNX and C exports hold a feed-forward "
+                         "Linear/activation stack only, with no hidden state to carry between calls; "
+                         "train with train.recurrent=off for an exportable policy")
     if actor.output not in ("tanh", "argmax"):
         raise ValueError(f"only policies with a 'tanh' or 'argmax' head can be exported, got output={actor.output!r}")
     layers = [(arr(m.weight), arr(m.bias)) for m in actor.linear_layers()]
