@@ -29,7 +29,7 @@ from torch import Tensor
 from .math import rotate
 from .params import RGB, CameraParams
 from .raycast import _PARALLEL_EPS, _TINY, EAGER_UNROLL_SLOTS, UNROLL_SLOTS
-from .state import World, planar_rows
+from .state import World
 
 _INF = float("inf")
 Style = tuple[float | None, RGB | None]  # height m, colour; None: the kind's default from CameraParams
@@ -178,7 +178,7 @@ def _kind_depths(pose: Tensor, camera: CameraParams, source: World):
     for key, mkey, rows, depth in _KINDS:
         obs = getattr(source, key)
         if obs.shape[1]:
-            yield key, depth(rows(planar_rows(obs), getattr(source, mkey), frame)[:, :, None, :], *(c[:, None] for c in cols))
+            yield key, depth(rows(obs, getattr(source, mkey), frame)[:, :, None, :], *(c[:, None] for c in cols))
 
 
 def camera_depth(pose: Tensor, world: World, camera: CameraParams, movers: World | None = None) -> Tensor:
@@ -194,7 +194,7 @@ def camera_depth(pose: Tensor, world: World, camera: CameraParams, movers: World
             n = obs.shape[1]
             if not n:
                 continue
-            row = rows(planar_rows(obs), getattr(source, mkey), frame)  # (k, B, N)
+            row = rows(obs, getattr(source, mkey), frame)  # (k, B, N)
             if n <= (UNROLL_SLOTS if torch.compiler.is_compiling() else EAGER_UNROLL_SLOTS):
                 for i in range(n):
                     best = torch.minimum(best, depth(row[:, :, i : i + 1], *cols))
