@@ -26,7 +26,7 @@ def test_moving_box_lidar_and_camera_return_match_geometry():
     cam = CameraParams(n_cols=1, fov=0.02, max_range=20.0)  # one column, along the axis
     params = SimParams(dt=dt, lidar=lidar, camera=cam)
     movers = make_movers(1, boxes=[[4.0, -0.5, 0.0, vy, hx, hy, 0.0]])
-    assert movers.rows.shape == (1, 1, 12)
+    assert movers.rows.shape == (1, 1, 9) and movers.boxes.shape == (1, 1, 3)
     ahead = lidar.n_rays // 2
     for k, s in enumerate(_drive(params, movers, 30)):
         cy = -0.5 + vy * dt * k
@@ -64,16 +64,17 @@ def test_moving_box_collides_with_robot():
 def test_moving_boxes_bounce_inside_their_region_and_keep_shape():
     movers = make_movers(2, [[0.0, 0.0, 0.7, -0.4, 0.2]], region=(-2.0, -1.5, 2.0, 1.5),
                          boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
-    start = movers.rows.clone()
+    start = movers.boxes.clone()
     states = _drive(SimParams(), movers, 100, b=2)
     for s in states:
         x, y, r = s.movers[..., 0], s.movers[..., 1], s.movers[..., 4]
         assert (x - r >= -2.0 - 1e-5).all() and (x + r <= 2.0 + 1e-5).all()
         assert (y - r >= -1.5 - 1e-5).all() and (y + r <= 1.5 + 1e-5).all()
-        assert torch.equal(s.movers[..., 9:], start[..., 9:])  # half extents and yaw are carried
+        assert torch.equal(s.mover_boxes, start)  # half extents and yaw are carried
     assert s.movers[0, 1, 4].item() == pytest.approx(math.hypot(0.3, 0.2))
-    world = mover_world(s.movers, s.mover_mask)
-    assert world.circle_mask.tolist() == [[True, False]] * 2 and world.box_mask.tolist() == [[False, True]] * 2
+    world = mover_world(s.movers, s.mover_mask, s.mover_boxes)  # slot 0 a disc, slot 1 (the last K = 1) a box: by shape
+    assert world.circle_mask.tolist() == [[True]] * 2 and world.box_mask.tolist() == [[True]] * 2
+    assert world.circles.shape == (2, 1, 3) and world.boxes.shape == (2, 1, 5)
 
 
 
@@ -83,10 +84,10 @@ def test_mover_world_is_component_major_with_the_movers_values():
 
     movers = make_movers(3, [[0.0, 0.0, 0.7, -0.4, 0.2]], boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
     s = init_state(torch.zeros(3, 3), make_world(3), SimParams(), movers=movers)
-    world = mover_world(s.movers, s.mover_mask)
+    world = mover_world(s.movers, s.mover_mask, s.mover_boxes)
     assert is_planar(world.circles) and is_planar(world.boxes)
-    assert torch.allclose(world.circles[2], torch.tensor([[0.0, 0.0, 0.2], [0.5, 0.5, math.hypot(0.3, 0.2)]]))
-    assert torch.allclose(world.boxes[2, 1], torch.tensor([0.5, 0.5, 0.3, 0.2, 0.4]))
+    assert torch.allclose(world.circles[2], torch.tensor([[0.0, 0.0, 0.2]]))
+    assert torch.allclose(world.boxes[2, 0], torch.tensor([0.5, 0.5, 0.3, 0.2, 0.4]))
 
 def test_make_movers_rejects_bad_boxes():
     with pytest.raises(ValueError, match="shape"):
@@ -121,8 +122,8 @@ def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
     env.reset()
     s = env._state
     m, mask = s.sim.movers, s.sim.mover_mask
-    assert m.shape == (256, 3, 12) and mask.float().mean() > 0.99
-    hx, hy, r = m[..., 9], m[..., 10], m[..., 4]
+    assert m.shape == (256, 3, 9) and s.sim.mover_boxes.shape == (256, 3, 3) and mask.float().mean() > 0.99
+    hx, hy, r = s.sim.mover_boxes[..., 0], s.sim.mover_boxes[..., 1], m[..., 4]
     assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6))[mask].all()
     assert torch.allclose(r, torch.hypot(hx, hy))
     # Placed by the largest box's bounding circle: its clearance from the start, the goal and the walls holds for every box.
@@ -132,7 +133,7 @@ def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
     assert (s.sim.clearance > 0).all()
     for _ in range(3):
         env.rand_step()
-    assert env._state.sim.movers.shape == (256, 3, 12) and torch.equal(env._state.sim.movers[..., 9:], m[..., 9:])
+    assert env._state.sim.mover_boxes.shape == (256, 3, 3) and torch.equal(env._state.sim.mover_boxes, s.sim.mover_boxes)
 
 
 def test_map_rejects_bad_moving_boxes():
@@ -160,8 +161,8 @@ def test_generated_worlds_take_moving_boxes_from_worlds_movers():
     cfg = NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "difficulty": 0.3, "movers": movers}, "max_steps": 50})
     env = NavEnv(cfg, num_envs=8, seed=1)
     env.reset()
-    m, mask = env.state.sim.movers, env.state.sim.mover_mask
-    assert m.shape == (8, 2, 12) and mask.any()
-    assert ((m[..., 9] >= 0.2 - 1e-6) & (m[..., 9] <= 0.3 + 1e-6))[mask].all()
+    m, mask = env.state.sim.mover_boxes, env.state.sim.mover_mask
+    assert m.shape == (8, 2, 3) and mask.any()
+    assert ((m[..., 0] >= 0.2 - 1e-6) & (m[..., 0] <= 0.3 + 1e-6))[mask].all()
     with pytest.raises(ConfigError, match=r"worlds\.movers\.size_y"):
         NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "movers": {**movers, "size_y": [0.5, 0.3]}}}).worlds.mover_spec()

@@ -504,7 +504,7 @@ def test_movers_are_stepped_mover_major_with_the_same_results():
     from torchnav.sim.movers import is_mover_major, mover_major, step_movers
 
     discs = [[-1.0, 0.0, 0.4, 0.1, 0.3], [1.0, 0.2, -0.3, 0.0, 0.25], [0.0, 1.0, 0.0, -0.5, 0.2]]
-    rows, mask, plan = make_movers(5, discs, region=(-3, -3, 3, 3), waypoints=[[[2.0, 2.0], [-2.0, 0.0]], [[0.0, -2.0]], []],
+    rows, mask, plan, _ = make_movers(5, discs, region=(-3, -3, 3, 3), waypoints=[[[2.0, 2.0], [-2.0, 0.0]], [[0.0, -2.0]], []],
                                    pedestrians=True)
     robot = torch.tensor([[0.5, 0.5]]).expand(5, 2)
     assert not is_mover_major(rows) and is_mover_major(mover_major(rows)) and torch.equal(mover_major(rows), rows)

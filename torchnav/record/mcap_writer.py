@@ -336,7 +336,7 @@ class EpisodeRecorder:
         sel = {k: v.index_select(0, idx).detach() for k, v in out.items()}
         if state is not None and self.camera is not None:  # rendered for the recorded envs only
             sim = state.sim[idx]
-            mw = mover_world(sim.movers, sim.mover_mask) if sim.movers.shape[1] else None
+            mw = mover_world(sim.movers, sim.mover_mask, sim.mover_boxes) if sim.movers.shape[1] else None
             sel["depth1"], sel["rgb1"] = camera_image(sim.pose, state.world[idx], self.camera, mw, self.styles)
         return TensorDict(sel, batch_size=[len(self.envs)])
 
