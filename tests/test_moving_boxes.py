@@ -166,3 +166,32 @@ def test_generated_worlds_take_moving_boxes_from_worlds_movers():
     assert ((m[..., 0] >= 0.2 - 1e-6) & (m[..., 0] <= 0.3 + 1e-6))[mask].all()
     with pytest.raises(ConfigError, match=r"worlds\.movers\.size_y"):
         NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "movers": {**movers, "size_y": [0.5, 0.3]}}}).worlds.mover_spec()
+
+
+def test_recording_draws_moving_boxes_as_boxes(tmp_path):
+    """The movers topic carries each moving box's half extents and yaw; the scene draws it as a cube
+    and the replay frames hold it as ``mover_boxes``."""
+    import json
+
+    import numpy as np
+
+    from torchnav.record import EpisodeRecorder, read_recording, record_rollout
+    from torchnav.record.replay import episode_frames, render_episode
+
+    env = _env_on(tmp_path, BOX_MAP, num_envs=2, max_steps=5)
+    out = tmp_path / "boxes.mcap"
+    with EpisodeRecorder(out, env, envs=(0,), episodes=1) as rec:
+        record_rollout(env, None, 5, rec)
+    rec = read_recording(out)
+    ep = rec.episodes()[0]
+    fr = episode_frames(rec, ep)
+    n = len(fr["pose"])
+    assert fr["movers"].shape == (n, 0, 5) and fr["mover_boxes"].shape == (n, 3, 7)
+    hx, hy = fr["mover_boxes"][..., 4], fr["mover_boxes"][..., 5]
+    assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6)).all()
+    assert np.allclose(fr["mover_boxes"][2][:, :2], fr["mover_boxes"][1][:, :2] + env.cfg.robot.dt * fr["mover_boxes"][2][:, 2:4], atol=1e-4)
+    scene = [m.data for m in rec.topic(f"/env{ep.env}/scene", ep.start_time, ep.end_time)]
+    movers = [e for s in scene for e in (json.loads(s) if isinstance(s, str) else s)["entities"] if e["id"] == "movers"]
+    assert movers and all(len(e["cubes"]) == 3 and not e["cylinders"] for e in movers)
+    assert movers[-1]["cubes"][0]["size"]["x"] == pytest.approx(2 * fr["mover_boxes"][-1][0, 4], abs=1e-5)
+    assert render_episode(rec, ep, tmp_path / "boxes.gif", dpi=40).stat().st_size > 0
