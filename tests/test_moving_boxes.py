@@ -148,8 +148,8 @@ def test_map_rejects_bad_moving_boxes():
     with pytest.raises(MapError, match="not both"):
         parse_map({**base, "moving_boxes": good, "moving_circles": {"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2]}})
     spec = parse_map({**base, "moving_boxes": {**good, "yaw": [0.0, 0.5]}})
-    assert spec.moving_circles.size_x == (0.2, 0.4) and spec.moving_circles.yaw == (0.0, 0.5)
-    assert spec.moving_circles.radius == pytest.approx((0.5 * math.hypot(0.4, 0.3),) * 2)
+    assert spec.movers.size_x == (0.2, 0.4) and spec.movers.yaw == (0.0, 0.5)
+    assert spec.movers.radius == pytest.approx((0.5 * math.hypot(0.4, 0.3),) * 2)
 
 
 def test_generated_worlds_take_moving_boxes_from_worlds_movers():

@@ -314,7 +314,7 @@ def test_map_rejects_bad_moving_circles(tmp_path):
         with pytest.raises(MapError, match=key):
             parse_map({**base, "moving_circles": bad})
     spec = parse_map({**base, "moving_circles": {"count": 3, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "region": [-2, -2, 2, 2], "motion": "constant"}})
-    assert spec.moving_circles.count == 3 and spec.moving_circles.region == (-2.0, -2.0, 2.0, 2.0)
+    assert spec.movers.count == 3 and spec.movers.region == (-2.0, -2.0, 2.0, 2.0)
 
 
 def test_replay_draws_movers_and_camera(tmp_path):

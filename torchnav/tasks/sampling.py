@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from ..maps import MapSpec
-from ..maps.spec import MovingCircles, RandomCircles
+from ..maps.spec import RandomCircles, RandomMovers
 from ..sim import World, pad_world, points_clearance
 from ..sim.movers import BOX_FIELDS, PATROL, PEDESTRIAN, Movers
 from ..worlds.layout import uniform
@@ -201,7 +201,7 @@ class MoverSource:
     """What :func:`place_movers` reads of a map, for movers that are not a map's: the procedural
     worlds' ``worlds.movers`` inside each env's bounds (each edge a tensor broadcasting to ``(n, 1, 1)``)."""
 
-    moving_circles: MovingCircles
+    movers: RandomMovers
     bounds: tuple
 
 
@@ -209,7 +209,7 @@ def place_movers(
     world: World, spec: MapSpec | MoverSource, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> Movers:
-    """The map's ``moving_circles`` for a batch ``n`` of episodes (``rows (n, M, 9)``, ``mask (n, M)``,
+    """The map's movers (``moving_circles`` or ``moving_boxes``) for a batch ``n`` of episodes (``rows (n, M, 9)``, ``mask (n, M)``,
     ``plan`` and ``boxes``: ``(n, M, 3)`` for ``moving_boxes``, every mover a box; ``(n, 0, 3)`` for discs).
 
     Positions are placed like random circles (:func:`place_random_objects`: ``clearance`` from
@@ -219,7 +219,7 @@ def place_movers(
     patrols and pedestrians get ``waypoints`` points uniform in the region (shrunk by
     their radius) and head for the first.
     """
-    mc = spec.moving_circles
+    mc = spec.movers
     n, like = start_xy.shape[0], start_xy
     region = mc.region or spec.bounds
     shim = _MoverPlacement(world.boxes.shape[1], world.circles.shape[1], region,
