@@ -175,21 +175,16 @@ def test_recording_draws_moving_boxes_as_boxes(tmp_path):
 
     import numpy as np
 
-    from torchnav.record import EpisodeRecorder, read_recording, record_rollout
-    from torchnav.record.replay import episode_frames, render_episode
+    from conftest import record_episode
+    from torchnav.record.replay import render_episode
 
     env = _env_on(tmp_path, BOX_MAP, num_envs=2, max_steps=5)
-    out = tmp_path / "boxes.mcap"
-    with EpisodeRecorder(out, env, envs=(0,), episodes=1) as rec:
-        record_rollout(env, None, 5, rec)
-    rec = read_recording(out)
-    ep = rec.episodes()[0]
-    fr = episode_frames(rec, ep)
-    n = len(fr["pose"])
+    rec, ep, fr = record_episode(env, tmp_path / "boxes.mcap", 5)
+    n, dt = len(fr["pose"]), env.cfg.robot.dt
     assert fr["movers"].shape == (n, 0, 5) and fr["mover_boxes"].shape == (n, 3, 7)
     hx, hy = fr["mover_boxes"][..., 4], fr["mover_boxes"][..., 5]
     assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6)).all()
-    assert np.allclose(fr["mover_boxes"][2][:, :2], fr["mover_boxes"][1][:, :2] + env.cfg.robot.dt * fr["mover_boxes"][2][:, 2:4], atol=1e-4)
+    assert np.allclose(fr["mover_boxes"][2][:, :2], fr["mover_boxes"][1][:, :2] + dt * fr["mover_boxes"][2][:, 2:4], atol=1e-4)
     scene = [m.data for m in rec.topic(f"/env{ep.env}/scene", ep.start_time, ep.end_time)]
     movers = [e for s in scene for e in (json.loads(s) if isinstance(s, str) else s)["entities"] if e["id"] == "movers"]
     assert movers and all(len(e["cubes"]) == 3 and not e["cylinders"] for e in movers)

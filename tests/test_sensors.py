@@ -318,19 +318,14 @@ def test_map_rejects_bad_moving_circles(tmp_path):
 
 
 def test_replay_draws_movers_and_camera(tmp_path):
+    from conftest import record_episode
     from torchnav.envs import make_nav_env
-    from torchnav.record import EpisodeRecorder, read_recording, record_rollout
-    from torchnav.record.replay import episode_frames, render_episode
+    from torchnav.record.replay import render_episode
 
     path = tmp_path / "moving.yaml"
     path.write_text(MOVING_MAP)
     env = make_nav_env(str(path), num_envs=2, max_steps=6, camera={"enabled": True, "n_cols": 16, "n_rows": 8})
-    out = tmp_path / "m.mcap"
-    with EpisodeRecorder(out, env, envs=(0,), episodes=1) as rec:
-        record_rollout(env, None, 6, rec)
-    rec = read_recording(out)
-    ep = rec.episodes()[0]
-    fr = episode_frames(rec, ep)
+    rec, ep, fr = record_episode(env, tmp_path / "m.mcap", 6)
     n = len(fr["pose"])
     assert fr["movers"].shape == (n, 4, 5) and fr["camera"].shape == (n, 8, 16, 3) and fr["camera"].dtype.name == "uint8"
     assert np.allclose(fr["movers"][2][:, :2], fr["movers"][1][:, :2] + env.cfg.robot.dt * fr["movers"][2][:, 2:4], atol=1e-4)  # they move
