@@ -98,6 +98,23 @@ def test_make_movers_rejects_bad_boxes():
         make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, -0.1, 0.3, 0.0]])
 
 
+def test_box_shapes_in_the_wrong_place_are_refused_naming_the_layout():
+    """The rows of the old layout (12 columns, the box columns appended) and box shapes that do not
+    fit the movers are errors that say where the shapes go, not silently dropped columns."""
+    from torchnav.sim import Movers, step_movers
+
+    rows, mask, plan, boxes = make_movers(2, [[0.0, 0.0, 0.5, 0.0, 0.2]], boxes=[[1.0, 1.0, 0.0, 0.5, 0.3, 0.2, 0.1]])
+    old = torch.cat((rows, torch.cat((torch.zeros(2, 1, 3), boxes), 1)), -1)  # (2, 2, 12)
+    with pytest.raises(ValueError, match=r"Movers\.boxes"):
+        init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(old, mask, plan))
+    with pytest.raises(ValueError, match="separate tensor"):
+        step_movers(old, plan, mask, 0.1, torch.zeros(2, 2), 0.2)
+    with pytest.raises(ValueError, match=r"the last K movers are boxes"):
+        init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(rows, mask, plan, torch.zeros(2, 3, 3)))
+    with pytest.raises(ValueError, match=r"mover boxes must have shape \(2, K, 3\)"):
+        mover_world(rows, mask, torch.zeros(2, 1, 5))
+
+
 # -- moving boxes in maps and the task ------------------------------------------------------
 
 BOX_MAP = """

@@ -160,6 +160,8 @@ def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy:
     The results have the shapes of the inputs but are stored mover-major (``mover_major``:
     ``movers[..., k]`` is a contiguous ``(M, B)`` block), the layout the maths runs in, so a
     state stepped again is read without a copy."""
+    if movers.shape[-1] != N_MOVER_FIELDS:
+        raise ValueError(f"movers must have {N_MOVER_FIELDS} columns {MOVER_FIELDS}, got {tuple(movers.shape)} (boxes' shapes are a separate tensor)")
     if movers.shape[1] == 0:
         return movers, plan
     cols = mover_major(movers)  # (B, M, 9) viewed from (9, M, B) storage
