@@ -59,6 +59,7 @@ from torchnav.sim import (  # noqa: E402
     init_state,
     integrate,
     lidar_scan,
+    Movers,
     make_movers,
     make_world,
     planar_world,
@@ -84,7 +85,7 @@ OPTIONS: dict[str, tuple[dict[str, Any], int | str]] = {
     "camera16": ({"camera": CameraParams(n_cols=16)}, 0),
     "camera64": ({"camera": CameraParams(n_cols=64)}, 0),
     "movers4": ({}, 4),  # 4 discs bouncing inside the arena, seen by lidar and collision
-    "boxmovers4": ({}, "boxes"),  # 4 boxes (the discs' rows with half extents and a yaw) bouncing inside the arena
+    "boxmovers4": ({}, "boxes"),  # 4 boxes (the discs' rows, their half extents and yaws in Movers.boxes) bouncing inside the arena
     "pedestrians4": ({}, "pedestrians"),  # 4 pedestrians cycling through 4 waypoints, avoiding each other and the robot
     "all": ({"imu": ImuParams(), "camera": CameraParams(n_cols=64)}, 4),
     "randomized": ({}, 0),  # per-env EnvParams: limits, 0-2 steps of actuator delay, lidar offset and range, radius
@@ -135,15 +136,17 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
         m = 4 if movers in ("pedestrians", "boxes") else int(movers)
         rows = torch.stack((u(-3.5, 3.5, b, m), u(-3.5, 3.5, b, m), u(-0.5, 0.5, b, m), u(-0.5, 0.5, b, m), u(0.2, 0.3, b, m)), -1)
         pts = [[[0.0, 0.0]] * 4] * m if movers == "pedestrians" else None
-        one, mask, plan = make_movers(1, [[0.0, 0.0, 0.5, 0.0, 0.3]] * m, region=(-h, -h, h, h), waypoints=pts, pedestrians=True)
+        one, mask, plan, _ = make_movers(1, [[0.0, 0.0, 0.5, 0.0, 0.3]] * m, region=(-h, -h, h, h), waypoints=pts, pedestrians=True)
         plan = torch.zeros(b, m, plan.shape[-1]) + plan  # a fresh tensor, also when empty
         if movers == "pedestrians":  # 4 random waypoints each
             plan[..., 4:] = u(-3.5, 3.5, b, m, 8)
         rows = torch.cat((rows, one[:, :, 5:].expand(b, -1, -1)), -1)
-        if movers == "boxes":  # half extents 0.15-0.3 m, any yaw; the radius column is the bounding circle's
+        shapes = torch.zeros(b, 0, 3)
+        if movers == "boxes":  # every mover a box: half extents 0.15-0.3 m, any yaw; the radius column is the bounding circle's
             hx, hy = u(0.15, 0.3, b, m), u(0.15, 0.3, b, m)
-            rows = torch.cat((rows[..., :4], torch.hypot(hx, hy)[..., None], rows[..., 5:], torch.stack((hx, hy, u(-math.pi, math.pi, b, m)), -1)), -1)
-        discs = (rows.to(device), mask.expand(b, -1).contiguous().to(device), plan.to(device))
+            rows = torch.cat((rows[..., :4], torch.hypot(hx, hy)[..., None], rows[..., 5:]), -1)
+            shapes = torch.stack((hx, hy, u(-math.pi, math.pi, b, m)), -1)
+        discs = Movers(rows.to(device), mask.expand(b, -1).contiguous().to(device), plan.to(device), shapes.to(device))
     state = init_state(pose.to(device), world, params, movers=discs)
     return state, world, [a.to(device) for a in actions]
 

@@ -32,3 +32,17 @@ def test_gen_keyword_is_generator_with_a_warning():
     assert torch.equal(a, line.start_poses(3, torch.Generator().manual_seed(1))[0])
     with pytest.raises(TypeError, match="both gen= .* and generator="):  # never one of them silently dropped
         line.start_poses(3, gen=torch.Generator(), generator=torch.Generator())
+
+
+def test_moving_circles_names_are_movers_with_a_warning():
+    """``MapSpec.moving_circles`` also held moving boxes: it is ``MapSpec.movers`` now, a ``RandomMovers``."""
+    from torchnav.maps import parse_map
+    from torchnav.maps import spec as spec_module
+
+    spec = parse_map({"size": [6.0, 6.0], "moving_circles": {"count": 4, "radius": [0.2, 0.3], "speed": [0.1, 0.2]}})
+    with pytest.warns(DeprecationWarning, match="MapSpec.moving_circles is deprecated: use movers"):
+        assert spec.moving_circles is spec.movers and spec.movers.count == 4
+    with pytest.warns(DeprecationWarning, match="MovingCircles is deprecated: use torchnav.maps.spec.RandomMovers"):
+        assert spec_module.MovingCircles is spec_module.RandomMovers
+    with pytest.raises(AttributeError, match="NoSuchThing"):
+        spec_module.NoSuchThing

@@ -26,7 +26,7 @@ def test_moving_box_lidar_and_camera_return_match_geometry():
     cam = CameraParams(n_cols=1, fov=0.02, max_range=20.0)  # one column, along the axis
     params = SimParams(dt=dt, lidar=lidar, camera=cam)
     movers = make_movers(1, boxes=[[4.0, -0.5, 0.0, vy, hx, hy, 0.0]])
-    assert movers.rows.shape == (1, 1, 12)
+    assert movers.rows.shape == (1, 1, 9) and movers.boxes.shape == (1, 1, 3)
     ahead = lidar.n_rays // 2
     for k, s in enumerate(_drive(params, movers, 30)):
         cy = -0.5 + vy * dt * k
@@ -64,16 +64,17 @@ def test_moving_box_collides_with_robot():
 def test_moving_boxes_bounce_inside_their_region_and_keep_shape():
     movers = make_movers(2, [[0.0, 0.0, 0.7, -0.4, 0.2]], region=(-2.0, -1.5, 2.0, 1.5),
                          boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
-    start = movers.rows.clone()
+    start = movers.boxes.clone()
     states = _drive(SimParams(), movers, 100, b=2)
     for s in states:
         x, y, r = s.movers[..., 0], s.movers[..., 1], s.movers[..., 4]
         assert (x - r >= -2.0 - 1e-5).all() and (x + r <= 2.0 + 1e-5).all()
         assert (y - r >= -1.5 - 1e-5).all() and (y + r <= 1.5 + 1e-5).all()
-        assert torch.equal(s.movers[..., 9:], start[..., 9:])  # half extents and yaw are carried
+        assert torch.equal(s.mover_boxes, start)  # half extents and yaw are carried
     assert s.movers[0, 1, 4].item() == pytest.approx(math.hypot(0.3, 0.2))
-    world = mover_world(s.movers, s.mover_mask)
-    assert world.circle_mask.tolist() == [[True, False]] * 2 and world.box_mask.tolist() == [[False, True]] * 2
+    world = mover_world(s.movers, s.mover_mask, s.mover_boxes)  # slot 0 a disc, slot 1 (the last K = 1) a box: by shape
+    assert world.circle_mask.tolist() == [[True]] * 2 and world.box_mask.tolist() == [[True]] * 2
+    assert world.circles.shape == (2, 1, 3) and world.boxes.shape == (2, 1, 5)
 
 
 
@@ -83,10 +84,10 @@ def test_mover_world_is_component_major_with_the_movers_values():
 
     movers = make_movers(3, [[0.0, 0.0, 0.7, -0.4, 0.2]], boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
     s = init_state(torch.zeros(3, 3), make_world(3), SimParams(), movers=movers)
-    world = mover_world(s.movers, s.mover_mask)
+    world = mover_world(s.movers, s.mover_mask, s.mover_boxes)
     assert is_planar(world.circles) and is_planar(world.boxes)
-    assert torch.allclose(world.circles[2], torch.tensor([[0.0, 0.0, 0.2], [0.5, 0.5, math.hypot(0.3, 0.2)]]))
-    assert torch.allclose(world.boxes[2, 1], torch.tensor([0.5, 0.5, 0.3, 0.2, 0.4]))
+    assert torch.allclose(world.circles[2], torch.tensor([[0.0, 0.0, 0.2]]))
+    assert torch.allclose(world.boxes[2, 0], torch.tensor([0.5, 0.5, 0.3, 0.2, 0.4]))
 
 def test_make_movers_rejects_bad_boxes():
     with pytest.raises(ValueError, match="shape"):
@@ -95,6 +96,23 @@ def test_make_movers_rejects_bad_boxes():
         make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]])
     with pytest.raises(ValueError, match="half extents"):
         make_movers(1, boxes=[[0.0, 0.0, 1.0, 0.0, -0.1, 0.3, 0.0]])
+
+
+def test_box_shapes_in_the_wrong_place_are_refused_naming_the_layout():
+    """The rows of the old layout (12 columns, the box columns appended) and box shapes that do not
+    fit the movers are errors that say where the shapes go, not silently dropped columns."""
+    from torchnav.sim import Movers, step_movers
+
+    rows, mask, plan, boxes = make_movers(2, [[0.0, 0.0, 0.5, 0.0, 0.2]], boxes=[[1.0, 1.0, 0.0, 0.5, 0.3, 0.2, 0.1]])
+    old = torch.cat((rows, torch.cat((torch.zeros(2, 1, 3), boxes), 1)), -1)  # (2, 2, 12)
+    with pytest.raises(ValueError, match=r"Movers\.boxes"):
+        init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(old, mask, plan))
+    with pytest.raises(ValueError, match="separate tensor"):
+        step_movers(old, plan, mask, 0.1, torch.zeros(2, 2), 0.2)
+    with pytest.raises(ValueError, match=r"the last K movers are boxes"):
+        init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(rows, mask, plan, torch.zeros(2, 3, 3)))
+    with pytest.raises(ValueError, match=r"mover boxes must have shape \(2, K, 3\)"):
+        mover_world(rows, mask, torch.zeros(2, 1, 5))
 
 
 # -- moving boxes in maps and the task ------------------------------------------------------
@@ -121,8 +139,8 @@ def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
     env.reset()
     s = env._state
     m, mask = s.sim.movers, s.sim.mover_mask
-    assert m.shape == (256, 3, 12) and mask.float().mean() > 0.99
-    hx, hy, r = m[..., 9], m[..., 10], m[..., 4]
+    assert m.shape == (256, 3, 9) and s.sim.mover_boxes.shape == (256, 3, 3) and mask.float().mean() > 0.99
+    hx, hy, r = s.sim.mover_boxes[..., 0], s.sim.mover_boxes[..., 1], m[..., 4]
     assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6))[mask].all()
     assert torch.allclose(r, torch.hypot(hx, hy))
     # Placed by the largest box's bounding circle: its clearance from the start, the goal and the walls holds for every box.
@@ -132,7 +150,7 @@ def test_task_places_moving_boxes_with_clearance_and_steps_them(tmp_path):
     assert (s.sim.clearance > 0).all()
     for _ in range(3):
         env.rand_step()
-    assert env._state.sim.movers.shape == (256, 3, 12) and torch.equal(env._state.sim.movers[..., 9:], m[..., 9:])
+    assert env._state.sim.mover_boxes.shape == (256, 3, 3) and torch.equal(env._state.sim.mover_boxes, s.sim.mover_boxes)
 
 
 def test_map_rejects_bad_moving_boxes():
@@ -147,8 +165,8 @@ def test_map_rejects_bad_moving_boxes():
     with pytest.raises(MapError, match="not both"):
         parse_map({**base, "moving_boxes": good, "moving_circles": {"count": 2, "radius": [0.2, 0.3], "speed": [0.1, 0.2]}})
     spec = parse_map({**base, "moving_boxes": {**good, "yaw": [0.0, 0.5]}})
-    assert spec.moving_circles.size_x == (0.2, 0.4) and spec.moving_circles.yaw == (0.0, 0.5)
-    assert spec.moving_circles.radius == pytest.approx((0.5 * math.hypot(0.4, 0.3),) * 2)
+    assert spec.movers.size_x == (0.2, 0.4) and spec.movers.yaw == (0.0, 0.5)
+    assert spec.movers.radius == pytest.approx((0.5 * math.hypot(0.4, 0.3),) * 2)
 
 
 def test_generated_worlds_take_moving_boxes_from_worlds_movers():
@@ -160,8 +178,32 @@ def test_generated_worlds_take_moving_boxes_from_worlds_movers():
     cfg = NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "difficulty": 0.3, "movers": movers}, "max_steps": 50})
     env = NavEnv(cfg, num_envs=8, seed=1)
     env.reset()
-    m, mask = env.state.sim.movers, env.state.sim.mover_mask
-    assert m.shape == (8, 2, 12) and mask.any()
-    assert ((m[..., 9] >= 0.2 - 1e-6) & (m[..., 9] <= 0.3 + 1e-6))[mask].all()
+    m, mask = env.state.sim.mover_boxes, env.state.sim.mover_mask
+    assert m.shape == (8, 2, 3) and mask.any()
+    assert ((m[..., 0] >= 0.2 - 1e-6) & (m[..., 0] <= 0.3 + 1e-6))[mask].all()
     with pytest.raises(ConfigError, match=r"worlds\.movers\.size_y"):
         NavConfig.from_dict({"worlds": {"families": {"forest": 1.0}, "movers": {**movers, "size_y": [0.5, 0.3]}}}).worlds.mover_spec()
+
+
+def test_recording_draws_moving_boxes_as_boxes(tmp_path):
+    """The movers topic carries each moving box's half extents and yaw; the scene draws it as a cube
+    and the replay frames hold it as ``mover_boxes``."""
+    import json
+
+    import numpy as np
+
+    from conftest import record_episode
+    from torchnav.record.replay import render_episode
+
+    env = _env_on(tmp_path, BOX_MAP, num_envs=2, max_steps=5)
+    rec, ep, fr = record_episode(env, tmp_path / "boxes.mcap", 5)
+    n, dt = len(fr["pose"]), env.cfg.robot.dt
+    assert fr["movers"].shape == (n, 0, 5) and fr["mover_boxes"].shape == (n, 3, 7)
+    hx, hy = fr["mover_boxes"][..., 4], fr["mover_boxes"][..., 5]
+    assert ((hx >= 0.2 - 1e-6) & (hx <= 0.4 + 1e-6) & (hy >= 0.1 - 1e-6) & (hy <= 0.2 + 1e-6)).all()
+    assert np.allclose(fr["mover_boxes"][2][:, :2], fr["mover_boxes"][1][:, :2] + dt * fr["mover_boxes"][2][:, 2:4], atol=1e-4)
+    scene = [m.data for m in rec.topic(f"/env{ep.env}/scene", ep.start_time, ep.end_time)]
+    movers = [e for s in scene for e in (json.loads(s) if isinstance(s, str) else s)["entities"] if e["id"] == "movers"]
+    assert movers and all(len(e["cubes"]) == 3 and not e["cylinders"] for e in movers)
+    assert movers[-1]["cubes"][0]["size"]["x"] == pytest.approx(2 * fr["mover_boxes"][-1][0, 4], abs=1e-5)
+    assert render_episode(rec, ep, tmp_path / "boxes.gif", dpi=40).stat().st_size > 0

@@ -361,7 +361,7 @@ def test_movers_policy_evaluates_on_its_map_and_config_validates(monkeypatch):
     monkeypatch.chdir(ROOT)
     spec, arena = load_map("recipes/maps/arena_movers.yaml"), load_map("arena")
     assert spec.random_boxes == arena.random_boxes and spec.size == arena.size
-    assert spec.moving_circles.count == 4 and spec.moving_circles.motion == "bounce"
+    assert spec.movers.count == 4 and spec.movers.motion == "bounce"
     cfg = load_config("ppo_lidar", ["--config", "recipes/configs/ppo_movers.yaml"])
     base = load_config("ppo_lidar", [])
     assert cfg.task.map == "recipes/maps/arena_movers.yaml"

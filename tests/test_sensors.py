@@ -314,23 +314,18 @@ def test_map_rejects_bad_moving_circles(tmp_path):
         with pytest.raises(MapError, match=key):
             parse_map({**base, "moving_circles": bad})
     spec = parse_map({**base, "moving_circles": {"count": 3, "radius": [0.2, 0.3], "speed": [0.1, 0.2], "region": [-2, -2, 2, 2], "motion": "constant"}})
-    assert spec.moving_circles.count == 3 and spec.moving_circles.region == (-2.0, -2.0, 2.0, 2.0)
+    assert spec.movers.count == 3 and spec.movers.region == (-2.0, -2.0, 2.0, 2.0)
 
 
 def test_replay_draws_movers_and_camera(tmp_path):
+    from conftest import record_episode
     from torchnav.envs import make_nav_env
-    from torchnav.record import EpisodeRecorder, read_recording, record_rollout
-    from torchnav.record.replay import episode_frames, render_episode
+    from torchnav.record.replay import render_episode
 
     path = tmp_path / "moving.yaml"
     path.write_text(MOVING_MAP)
     env = make_nav_env(str(path), num_envs=2, max_steps=6, camera={"enabled": True, "n_cols": 16, "n_rows": 8})
-    out = tmp_path / "m.mcap"
-    with EpisodeRecorder(out, env, envs=(0,), episodes=1) as rec:
-        record_rollout(env, None, 6, rec)
-    rec = read_recording(out)
-    ep = rec.episodes()[0]
-    fr = episode_frames(rec, ep)
+    rec, ep, fr = record_episode(env, tmp_path / "m.mcap", 6)
     n = len(fr["pose"])
     assert fr["movers"].shape == (n, 4, 5) and fr["camera"].shape == (n, 8, 16, 3) and fr["camera"].dtype.name == "uint8"
     assert np.allclose(fr["movers"][2][:, :2], fr["movers"][1][:, :2] + env.cfg.robot.dt * fr["movers"][2][:, 2:4], atol=1e-4)  # they move
@@ -504,7 +499,7 @@ def test_movers_are_stepped_mover_major_with_the_same_results():
     from torchnav.sim.movers import is_mover_major, mover_major, step_movers
 
     discs = [[-1.0, 0.0, 0.4, 0.1, 0.3], [1.0, 0.2, -0.3, 0.0, 0.25], [0.0, 1.0, 0.0, -0.5, 0.2]]
-    rows, mask, plan = make_movers(5, discs, region=(-3, -3, 3, 3), waypoints=[[[2.0, 2.0], [-2.0, 0.0]], [[0.0, -2.0]], []],
+    rows, mask, plan, _ = make_movers(5, discs, region=(-3, -3, 3, 3), waypoints=[[[2.0, 2.0], [-2.0, 0.0]], [[0.0, -2.0]], []],
                                    pedestrians=True)
     robot = torch.tensor([[0.5, 0.5]]).expand(5, 2)
     assert not is_mover_major(rows) and is_mover_major(mover_major(rows)) and torch.equal(mover_major(rows), rows)

@@ -8,13 +8,14 @@ See ``docs/maps.md`` for the file format and the shipped maps.
 """
 
 from .loader import available_maps, load_map, parse_map
-from .spec import MapError, MapSpec, RandomBoxes, RandomCircles
+from .spec import MapError, MapSpec, RandomBoxes, RandomCircles, RandomMovers
 
 __all__ = [
     "MapError",
     "MapSpec",
     "RandomBoxes",
     "RandomCircles",
+    "RandomMovers",
     "available_maps",
     "load_map",
     "parse_map",

@@ -20,7 +20,7 @@ from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_i
 from .occupancy import ImageError, mask_boxes, read_mask
 from ..sim.camera import ObstacleStyles
 from ..sim.params import is_rgb
-from .spec import MOTIONS, MapError, MapSpec, MovingCircles, RandomBoxes, RandomCircles
+from .spec import MOTIONS, MapError, MapSpec, RandomBoxes, RandomCircles, RandomMovers
 
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
 _TOL = 1e-6
@@ -214,13 +214,13 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
     return rc
 
 
-def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_circles", boxes: bool = False) -> MovingCircles:
-    """``v`` validated as :class:`MovingCircles` (moving boxes, ``moving_boxes``, with ``boxes``);
+def random_movers(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_circles", boxes: bool = False) -> RandomMovers:
+    """``v`` validated as :class:`RandomMovers`: moving discs, or moving boxes (``moving_boxes``) with ``boxes``;
     errors name ``k`` (the key: also used for the procedural worlds' ``worlds.movers``,
     ``tasks.config.WorldsConfig``)."""
     shape = ("size_x", "size_y") if boxes else ("radius",)
     v = check_mapping(ctx, v, k, ("count", *shape, "speed"), ("motion", "region", "clearance", "margin", "waypoints") + (("yaw",) if boxes else ()))
-    d = MovingCircles.__dataclass_fields__
+    d = RandomMovers.__dataclass_fields__
     extents = {}
     if boxes:
         extents = {"size_x": check_range(ctx, v["size_x"], f"{k}.size_x", "pos"), "size_y": check_range(ctx, v["size_y"], f"{k}.size_y", "pos"),
@@ -236,7 +236,7 @@ def _moving_circles(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "movin
         if not (region[0] < region[2] and region[1] < region[3]):
             raise ctx.fail(f"{k}.region", f"expected [xmin, ymin, xmax, ymax] with xmin < xmax and ymin < ymax, got {show(v['region'])}")
         _inside(ctx, f"{k}.region", "a corner", [region[0], region[2]], [region[1], region[3]], size)
-    mc = MovingCircles(
+    mc = RandomMovers(
         count=check_count(ctx, v["count"], f"{k}.count", MAX_RANDOM),
         radius=extents.pop("radius") if boxes else check_range(ctx, v["radius"], f"{k}.radius", "pos"),
         speed=check_range(ctx, v["speed"], f"{k}.speed", "nonneg"),
@@ -293,17 +293,17 @@ def parse_map(
         styles=ObstacleStyles(circles=circle_styles, boxes=box_styles),
         random_boxes=_random_boxes(ctx, d["random_boxes"], size) if "random_boxes" in d else None,
         random_circles=_random_circles(ctx, d["random_circles"], size) if "random_circles" in d else None,
-        moving_circles=_movers(ctx, d, size),
+        movers=_movers(ctx, d, size),
     )
 
 
-def _movers(ctx: Ctx, d: dict, size: tuple[float, float]) -> MovingCircles | None:
+def _movers(ctx: Ctx, d: dict, size: tuple[float, float]) -> RandomMovers | None:
     """The map's ``moving_circles`` or ``moving_boxes`` (one kind of mover per map), or None."""
     if "moving_circles" in d and "moving_boxes" in d:
         raise ctx.fail("moving_boxes", "a map declares moving_circles or moving_boxes, not both")
     if "moving_boxes" in d:
-        return _moving_circles(ctx, d["moving_boxes"], size, "moving_boxes", boxes=True)
-    return _moving_circles(ctx, d["moving_circles"], size) if "moving_circles" in d else None
+        return random_movers(ctx, d["moving_boxes"], size, "moving_boxes", boxes=True)
+    return random_movers(ctx, d["moving_circles"], size) if "moving_circles" in d else None
 
 
 def available_maps() -> list[str]:

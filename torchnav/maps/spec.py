@@ -7,11 +7,13 @@ yaw in radians counter-clockwise from +x.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 
+from torchnav.deprecation import renamed_attribute
 from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.state import World, make_world, pad_world
 
@@ -46,9 +48,9 @@ MOTIONS = ("bounce", "constant", "patrol", "pedestrian")
 
 
 @dataclass(frozen=True)
-class MovingCircles:
-    """Moving discs (or boxes) the task places at random on every reset (``moving_circles``,
-    ``moving_boxes`` in YAML).
+class RandomMovers:
+    """Moving discs or moving boxes the task places at random on every reset (``moving_circles``,
+    ``moving_boxes`` in YAML; ``worlds.movers`` of procedural worlds).
 
     Each gets a speed in ``speed``. ``bounce``: a uniformly random heading, bouncing inside
     ``region`` (default: the whole map); ``constant``: the same, driving straight on (through
@@ -75,8 +77,8 @@ class MovingCircles:
 @dataclass(frozen=True)
 class MapSpec:
     """A validated map. Geometry is in world metres, in the layouts of :class:`World`; the fields are
-    tabled in docs/maps.md, "Loading a map". ``moving_circles``: the moving discs (or boxes:
-    ``moving_boxes``) the task places on reset, or None. ``styles``: the camera heights and colours
+    tabled in docs/maps.md, "Loading a map". ``movers``: the moving discs (``moving_circles``) or
+    boxes (``moving_boxes``) the task places on reset, or None. ``styles``: the camera heights and colours
     of the fixed circles and boxes that declare ``height`` or ``color`` (slot ``i`` of a kind is its
     ``i``-th fixed obstacle)."""
 
@@ -88,8 +90,9 @@ class MapSpec:
     boxes: tuple[tuple[float, float, float, float, float], ...] = ()
     random_boxes: RandomBoxes | None = None
     random_circles: RandomCircles | None = None
-    moving_circles: MovingCircles | None = None
+    movers: RandomMovers | None = None
     styles: ObstacleStyles = ObstacleStyles()
+    moving_circles = renamed_attribute("moving_circles", "movers")  # the old name, also for moving boxes
 
     @property
     def n_fixed_boxes(self) -> int:
@@ -138,3 +141,11 @@ class MapSpec:
             return x
 
         return plain(asdict(self))
+
+
+def __getattr__(name: str) -> Any:
+    """``MovingCircles``, the old name of :class:`RandomMovers` (it also held moving boxes), with a warning."""
+    if name == "MovingCircles":
+        warnings.warn("torchnav.maps.spec.MovingCircles is deprecated: use torchnav.maps.spec.RandomMovers", DeprecationWarning, stacklevel=2)
+        return RandomMovers
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -28,6 +28,17 @@ from . import scene
 from .schemas import action_schema, event_schema, foxglove_schema, imu_schema, movers_schema, reward_schema
 
 
+def mover_rows(sim: Any) -> Any:
+    """The movers of a batch of simulator states as recorded: ``(B, M, 6)`` rows ``[x, y, vx, vy, radius,
+    exists]``, with ``[half_x, half_y, yaw]`` appended (``(B, M, 9)``, zeros for discs) when the last
+    ``K > 0`` movers are boxes (``SimState.mover_boxes``)."""
+    m, k = sim.movers, sim.mover_boxes.shape[1]
+    rows = torch.cat((m[..., :5], sim.mover_mask[..., None].to(m.dtype)), -1)
+    if not k:
+        return rows
+    return torch.cat((rows, torch.cat((m.new_zeros(m.shape[0], m.shape[1] - k, 3), sim.mover_boxes), 1)), -1)
+
+
 class RecordingWarning(UserWarning):
     """Recording stopped (write error) or is incomplete; training is not affected."""
 
@@ -326,7 +337,7 @@ class EpisodeRecorder:
             if self.imu:
                 out["imu1"] = state.sim.imu
             if self.movers:
-                out["movers1"] = torch.cat((state.sim.movers[..., :5], state.sim.mover_mask[..., None].to(state.sim.movers.dtype)), -1)
+                out["movers1"] = mover_rows(state.sim)
             w = getattr(state, "world", None)
             if w is not None:
                 out.update(segments=w.segments, segment_mask=w.segment_mask, circles=w.circles, circle_mask=w.circle_mask,
@@ -336,7 +347,7 @@ class EpisodeRecorder:
         sel = {k: v.index_select(0, idx).detach() for k, v in out.items()}
         if state is not None and self.camera is not None:  # rendered for the recorded envs only
             sim = state.sim[idx]
-            mw = mover_world(sim.movers, sim.mover_mask) if sim.movers.shape[1] else None
+            mw = mover_world(sim.movers, sim.mover_mask, sim.mover_boxes) if sim.movers.shape[1] else None
             sel["depth1"], sel["rgb1"] = camera_image(sim.pose, state.world[idx], self.camera, mw, self.styles)
         return TensorDict(sel, batch_size=[len(self.envs)])
 

@@ -63,8 +63,9 @@ def _short(v, n: int = 60) -> str:
 
 def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
     """Arrays of one episode: ``time (N,)`` s, ``pose (N, 3)``, ``ranges (N, R)``, ``reward (N,)`` (0 at the start frame),
-    and where recorded ``movers (N, M, 5)`` ``[x, y, vx, vy, radius]`` and ``camera (N, H, W, 3)`` uint8 (the start
-    frame, which has neither, repeats the first step's)."""
+    and where recorded ``movers (N, M, 5)`` ``[x, y, vx, vy, radius]`` (the moving discs), ``mover_boxes (N, K, 7)``
+    ``[x, y, vx, vy, half_x, half_y, yaw]`` and ``camera (N, H, W, 3)`` uint8 (the start frame, which has none of
+    them, repeats the first step's)."""
     t0, t1 = ep.start_time, ep.end_time
     odom = rec.topic(f"/env{ep.env}/odom", t0, t1)
     scans = {m.log_time: m.data["ranges"] for m in rec.topic(f"/env{ep.env}/scan", t0, t1)}
@@ -79,9 +80,11 @@ def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
         times.append((m.log_time - t0) / 1e9)
     out = {"time": np.asarray(times), "pose": np.asarray(pose).reshape(-1, 3), "ranges": np.asarray(ranges, dtype=float),
            "reward": np.asarray(reward)}
-    movers = {m.log_time: np.asarray(m.data["discs"], dtype=float).reshape(-1, 5) for m in rec.topic(f"/env{ep.env}/movers", t0, t1)}
+    moving = rec.topic(f"/env{ep.env}/movers", t0, t1)
+    movers = {m.log_time: np.asarray(m.data["discs"], dtype=float).reshape(-1, 5) for m in moving}
+    boxes = {m.log_time: np.asarray(m.data["boxes"], dtype=float).reshape(-1, 7) for m in moving if "boxes" in m.data}
     images = {m.log_time: m.data for m in rec.topic(f"/env{ep.env}/camera", t0, t1)}
-    for key, per_time, decode in (("movers", movers, lambda a: a), ("camera", images, _decode_rgb)):
+    for key, per_time, decode in (("movers", movers, lambda a: a), ("mover_boxes", boxes, lambda a: a), ("camera", images, _decode_rgb)):
         if per_time:
             first = per_time[min(per_time)]
             out[key] = np.stack([decode(per_time.get(m.log_time, first)) for m in odom])
@@ -190,7 +193,8 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
         if show_rays and fr["ranges"].ndim == 2 and fr["ranges"].shape[1] == lidar.n_rays:
             draw_rays(ax, fr["pose"][i : i + 1], fr["ranges"][i : i + 1], lidar, env=0)
         if "movers" in fr:
-            draw_obstacles(ax, np.zeros((0, 4)), fr["movers"][i][:, [0, 1, 4]], np.zeros((0, 5)), color="#d23c3c")
+            boxes = fr["mover_boxes"][i][:, [0, 1, 4, 5, 6]] if "mover_boxes" in fr else np.zeros((0, 5))
+            draw_obstacles(ax, np.zeros((0, 4)), fr["movers"][i][:, [0, 1, 4]], boxes, color="#d23c3c")
         draw_robots(ax, fr["pose"][i : i + 1], radius, env=0)
         if axc is not None:
             axc.clear()

@@ -64,6 +64,16 @@ def cylinder(x: float, y: float, diameter: float, height: float, name: str, yaw:
             "bottom_scale": 1.0, "top_scale": 1.0, "color": color(name)}
 
 
+def cube(x: float, y: float, half_x: float, half_y: float, yaw: float, height: float, name: str) -> dict:
+    """A Foxglove CubePrimitive: an oriented box standing on the floor, coloured ``COLORS[name]``."""
+    return {"pose": pose(x, y, yaw, height / 2), "size": {"x": 2 * half_x, "y": 2 * half_y, "z": height}, "color": color(name)}
+
+
+def _is_box(movers: np.ndarray) -> np.ndarray:
+    """Which recorded mover rows (``mover_rows``) are boxes: those with a half extent."""
+    return (movers[:, 6] > 0) | (movers[:, 7] > 0) if movers.shape[1] > 6 else np.zeros(len(movers), dtype=bool)
+
+
 def entity(ns: int, frame: str, ident: str, **prims: list) -> dict:
     return {"timestamp": stamp(ns), "frame_id": frame, "id": ident, "lifetime": {"sec": 0, "nsec": 0},
             "frame_locked": False, "metadata": [], **_EMPTY, **prims}
@@ -184,8 +194,7 @@ class EnvStream:
 
     def _static_entities(self, seg: list, cir: list, box: list) -> list[dict]:
         t = self.t
-        cubes = [{"pose": pose(b[0], b[1], b[4], WALL_HEIGHT / 2), "size": {"x": 2 * b[2], "y": 2 * b[3], "z": WALL_HEIGHT},
-                  "color": color("box")} for b in box]
+        cubes = [cube(b[0], b[1], b[2], b[3], b[4], WALL_HEIGHT, "box") for b in box]
         out = [
             entity(t, self.frame, "walls", lines=[line_list(seg, 0.05, COLORS["wall"], z=0.0)] if seg else []),
             entity(t, self.frame, "boxes", cubes=cubes),
@@ -214,7 +223,11 @@ class EnvStream:
                                        "step": 4 * w, "data": base64.b64encode(depth.tobytes()).decode()})
         if "movers1" in r:
             m = r["movers1"]
-            self._add("movers", {"env": self.env, "episode": self.episode, "discs": sum(_rows(m[:, :5], m[:, 5] > 0.5), [])})
+            exists, box = m[:, 5] > 0.5, _is_box(m)
+            msg = {"env": self.env, "episode": self.episode, "discs": sum(_rows(m[:, :5], exists & ~box), [])}
+            if m.shape[1] > 6:  # moving boxes: [x, y, vx, vy, half_x, half_y, yaw]
+                msg["boxes"] = sum(_rows(m[:, [0, 1, 2, 3, 6, 7, 8]], exists & box), [])
+            self._add("movers", msg)
 
     def _frame(self, p: np.ndarray, ranges: np.ndarray, vel: tuple[float, float], odom: np.ndarray | None,
                movers: np.ndarray | None = None) -> None:
@@ -248,9 +261,11 @@ class EnvStream:
             extra = "," + json.dumps(entity(self.t, self.frame, "estimate", arrows=[{
                 "pose": pose(_f(odom[0]), _f(odom[1]), _f(odom[2]), ROBOT_HEIGHT + 0.02), "shaft_length": self.radius,
                 "shaft_diameter": 0.03, "head_length": 0.08, "head_diameter": 0.08, "color": color("estimate")}]))
-        if movers is not None:  # moving discs, redrawn every step
+        if movers is not None:  # moving discs and boxes, redrawn every step
+            exists, box = movers[:, 5] > 0.5, _is_box(movers)
             extra += "," + json.dumps(entity(self.t, self.frame, "movers", cylinders=[
-                cylinder(c[0], c[1], 2 * c[4], MOVER_HEIGHT, "mover") for c in _rows(movers, movers[:, 5] > 0.5)]))
+                cylinder(c[0], c[1], 2 * c[4], MOVER_HEIGHT, "mover") for c in _rows(movers, exists & ~box)], cubes=[
+                cube(c[0], c[1], c[6], c[7], c[8], MOVER_HEIGHT, "mover") for c in _rows(movers, exists & box)]))
         self._add("scene", '{"deletions":[],"entities":[' + self.static + "," + json.dumps(robot) + "," + trail + extra + "]}")
         def odometry(body: str, at: dict) -> dict:  # the true pose and the odometry estimate, with the applied twist
             return {"timestamp": ts, "frame_id": self.frame, "body_frame_id": body, "pose": at,

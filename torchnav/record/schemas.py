@@ -225,7 +225,9 @@ def movers_schema() -> dict:
     return _message("torchnav.Movers", "The moving obstacles of one env after a step",
                     ["env", "episode", "discs"], {
         "env": _INT, "episode": _INT,
-        "discs": {"type": "array", "items": _NUM, "description": "existing movers [x m, y m, vx m/s, vy m/s, radius m], 5 numbers each, one after the other"},
+        "discs": {"type": "array", "items": _NUM, "description": "existing moving discs [x m, y m, vx m/s, vy m/s, radius m], 5 numbers each, one after the other"},
+        "boxes": {"type": "array", "items": _NUM, "description": "existing moving boxes [x m, y m, vx m/s, vy m/s, half_x m, half_y m, yaw rad], "
+                  "7 numbers each, one after the other; only in batches with moving boxes"},
     })
 
 

@@ -5,16 +5,18 @@ with a ``(B, M)`` bool mask; the columns are ``MOVER_FIELDS``:
 
     x, y (m), vx, vy (m/s), radius (m), xmin, ymin, xmax, ymax (m: the region)
 
-Batches with moving boxes carry three more columns, ``BOX_FIELDS`` (``(B, M, 12)``):
+The last ``K`` slots may be oriented boxes: their shapes are a second ``(B, K, 3)``
+tensor (``SimState.mover_boxes``, ``Movers.boxes``), one row of ``BOX_FIELDS`` per box:
 
     half_x, half_y (m), yaw (rad)
 
-A slot with ``half_x > 0`` or ``half_y > 0`` is an oriented box centred at ``x, y``
-that translates without turning; its ``radius`` is its bounding circle's
-(``hypot(half_x, half_y)``), which is what the motion below uses (a box bounces when
-its bounding circle meets the region's edge; pedestrians keep that circle clear).
-Slots with both half extents 0 are discs. Without boxes the tensor keeps its 9
-columns, and the step costs what it did.
+so slots ``0`` to ``M - K - 1`` are discs and slots ``M - K`` to ``M - 1`` boxes, fixed by
+the tensors' shapes: the lidar, the camera and collision test each disc only as a circle
+and each box only as a box, and the step never asks the data which kind a slot is. A box
+is centred at ``x, y`` and translates without turning; its ``radius`` is its bounding
+circle's (``hypot(half_x, half_y)``), which is what the motion below uses (a box bounces
+when its bounding circle meets the region's edge; pedestrians keep that circle clear).
+Without boxes ``K = 0`` and the step costs what it did.
 
 Three kinds of motion:
 
@@ -53,7 +55,7 @@ from .state import World, _planar_copy
 
 MOVER_FIELDS = ("x", "y", "vx", "vy", "radius", "xmin", "ymin", "xmax", "ymax")
 N_MOVER_FIELDS = len(MOVER_FIELDS)
-BOX_FIELDS = ("half_x", "half_y", "yaw")  # the columns after MOVER_FIELDS of batches with moving boxes
+BOX_FIELDS = ("half_x", "half_y", "yaw")  # the columns of Movers.boxes / SimState.mover_boxes
 BALLISTIC, PATROL, PEDESTRIAN = 0, 1, 2
 PLAN_FIELDS = ("kind", "speed", "target", "n")  # then P waypoints (x, y)
 PED_TAU = 0.5  # s, relaxation time of a pedestrian's velocity towards the desired one
@@ -64,12 +66,14 @@ PED_ARRIVE = 0.3  # m, a pedestrian has reached a waypoint this close to it
 
 
 class Movers(NamedTuple):
-    """Moving obstacles of a batch: ``rows`` ``(B, M, 9)`` (``(B, M, 12)`` with boxes), ``mask``
-    ``(B, M)`` bool and ``plan`` ``(B, M, 4 + 2P)`` or ``(B, M, 0)`` (module docstring)."""
+    """Moving obstacles of a batch: ``rows`` ``(B, M, 9)``, ``mask`` ``(B, M)`` bool, ``plan``
+    ``(B, M, 4 + 2P)`` or ``(B, M, 0)``, and ``boxes`` ``(B, K, 3)``, the shapes of the last ``K``
+    movers, which are boxes (``None``: ``K = 0``, all discs; module docstring)."""
 
     rows: Tensor
     mask: Tensor
     plan: Tensor
+    boxes: Tensor | None = None
 
 
 def make_movers(
@@ -87,7 +91,7 @@ def make_movers(
     bouncing inside ``region`` ``(xmin, ymin, xmax, ymax)`` (``None``: unbounded, constant velocity).
 
     ``boxes`` ``(K, 7)`` rows ``[x, y, vx, vy, half_x, half_y, yaw]`` add moving boxes after
-    the discs (slots ``M`` to ``M + K - 1``; the rows then have 12 columns, module docstring).
+    the discs (slots ``M`` to ``M + K - 1``; their shapes are ``Movers.boxes``, module docstring).
 
     ``waypoints``, one list of ``[x, y]`` per mover, makes the movers with a non-empty list
     patrols (or, with ``pedestrians=True``, pedestrians) whose cruising speed is the
@@ -98,7 +102,7 @@ def make_movers(
         raise ValueError(f"movers must have shape (M, 5) [x, y, vx, vy, radius], got {tuple(d.shape)}")
     if (d[:, 4] <= 0).any() or not torch.isfinite(d).all():
         raise ValueError("movers: radius must be > 0 and every value finite")
-    shape = None
+    shape = d.new_zeros(0, len(BOX_FIELDS))
     if boxes is not None:
         bx = torch.as_tensor(boxes if len(boxes) else [], dtype=dtype, device=device)
         bx = bx.reshape(0, 7) if bx.numel() == 0 else bx
@@ -107,7 +111,7 @@ def make_movers(
         if (bx[:, 4:6] < 0).any() or ((bx[:, 4] == 0) & (bx[:, 5] == 0)).any() or not torch.isfinite(bx).all():
             raise ValueError("movers: boxes need half extents >= 0, not both 0, and every value finite")
         d = torch.cat((d, torch.cat((bx[:, :4], torch.hypot(bx[:, 4], bx[:, 5])[:, None]), 1)))
-        shape = torch.cat((d.new_zeros(d.shape[0] - bx.shape[0], 3), bx[:, 4:]))
+        shape = bx[:, 4:]
     reg = (-math.inf, -math.inf, math.inf, math.inf) if region is None else tuple(float(v) for v in region)
     if len(reg) != 4 or not (reg[0] < reg[2] and reg[1] < reg[3]):
         raise ValueError(f"movers: region must be (xmin, ymin, xmax, ymax) with xmin < xmax and ymin < ymax, got {region!r}")
@@ -117,7 +121,7 @@ def make_movers(
         if not inside.all():
             raise ValueError(f"movers: every disc must start inside its region {reg}")
     m = d.shape[0]
-    rows = torch.cat((d, torch.tensor(reg, dtype=dtype, device=device).expand(m, 4), *(() if shape is None else (shape,))), 1)
+    rows = torch.cat((d, torch.tensor(reg, dtype=dtype, device=device).expand(m, 4)), 1)
     plan = torch.zeros(m, 0, dtype=dtype, device=device)
     if waypoints is not None:
         if len(waypoints) != m:
@@ -138,13 +142,14 @@ def make_movers(
         rows.unsqueeze(0).expand(batch_size, -1, -1).clone(),
         torch.ones(batch_size, m, dtype=torch.bool, device=device),
         plan.unsqueeze(0).expand(batch_size, -1, -1).clone(),
+        shape.unsqueeze(0).expand(batch_size, -1, -1).clone(),
     )
 
 
 def no_movers(batch_size: int, like: Tensor) -> Movers:
-    """Zero mover slots: ``(B, 0, 9)``, ``(B, 0)`` and ``(B, 0, 0)``."""
+    """Zero mover slots: ``(B, 0, 9)``, ``(B, 0)``, ``(B, 0, 0)`` and ``(B, 0, 3)``."""
     return Movers(like.new_zeros(batch_size, 0, N_MOVER_FIELDS), torch.zeros(batch_size, 0, dtype=torch.bool, device=like.device),
-                  like.new_zeros(batch_size, 0, 0))
+                  like.new_zeros(batch_size, 0, 0), like.new_zeros(batch_size, 0, len(BOX_FIELDS)))
 
 
 def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[Tensor, Tensor]:
@@ -155,17 +160,18 @@ def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy:
     The results have the shapes of the inputs but are stored mover-major (``mover_major``:
     ``movers[..., k]`` is a contiguous ``(M, B)`` block), the layout the maths runs in, so a
     state stepped again is read without a copy."""
+    if movers.shape[-1] != N_MOVER_FIELDS:
+        raise ValueError(f"movers must have {N_MOVER_FIELDS} columns {MOVER_FIELDS}, got {tuple(movers.shape)} (boxes' shapes are a separate tensor)")
     if movers.shape[1] == 0:
         return movers, plan
     cols = mover_major(movers)  # (B, M, 9) viewed from (9, M, B) storage
     x, y, vx, vy, r, xmin, ymin, xmax, ymax = (cols[..., k].t() for k in range(N_MOVER_FIELDS))  # (M, B) each
-    shape = [cols[..., k].t() for k in range(N_MOVER_FIELDS, cols.shape[-1])]  # boxes' half extents and yaw, carried
     if plan.shape[-1]:
         plan = mover_major(plan)
         (vx, vy), plan = _steer((x, y, vx, vy, r), plan, mask, dt, robot_xy, robot_radius)
     x, vx = _bounce(x + vx * dt, vx, xmin + r, xmax - r)
     y, vy = _bounce(y + vy * dt, vy, ymin + r, ymax - r)
-    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax, *shape)).permute(2, 1, 0), plan
+    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax)).permute(2, 1, 0), plan
 
 
 def is_mover_major(x: Tensor) -> bool:
@@ -239,20 +245,22 @@ def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tenso
     return p, v
 
 
-def mover_world(movers: Tensor, mask: Tensor) -> World:
-    """The movers as a :class:`World` of circles ``[x, y, radius]`` and, for rows with box columns,
-    boxes ``[x, y, half_x, half_y, yaw]`` (slot ``i`` of both kinds is mover ``i``, masked in the
-    kind it is not); no walls; stored component-major (``planar_rows``): read without a copy."""
-    b = movers.shape[0]
-    circles = torch.stack((movers[..., 0], movers[..., 1], movers[..., 4])).permute(1, 2, 0)
-    boxes, box_mask, circle_mask = movers.new_zeros(b, 0, 5), mask[:, :0], mask
-    if movers.shape[-1] > N_MOVER_FIELDS:
-        hx, hy, yaw = (movers[..., N_MOVER_FIELDS + k] for k in range(3))
-        is_box = (hx > 0) | (hy > 0)
-        boxes = torch.stack((movers[..., 0], movers[..., 1], hx, hy, yaw)).permute(1, 2, 0)
-        box_mask, circle_mask = mask & is_box, mask & ~is_box
+def mover_world(movers: Tensor, mask: Tensor, boxes: Tensor | None = None) -> World:
+    """The movers ``(B, M, 9)`` as a :class:`World` of circles ``[x, y, radius]`` (the first
+    ``M - K`` slots) and boxes ``[x, y, half_x, half_y, yaw]`` (the last ``K``, whose shapes are
+    ``boxes`` ``(B, K, 3)``; ``None``: no boxes); no walls; stored component-major
+    (``planar_rows``): read without a copy."""
+    b, m = movers.shape[:2]
+    k = 0 if boxes is None else boxes.shape[1]
+    if boxes is not None and (boxes.dim() != 3 or boxes.shape[0] != b or boxes.shape[2] != len(BOX_FIELDS) or k > m):
+        raise ValueError(f"mover boxes must have shape ({b}, K, {len(BOX_FIELDS)}) with K <= {m}, got {tuple(boxes.shape)}")
+    disc, box = movers[:, : m - k], movers[:, m - k :]
+    circles = torch.stack((disc[..., 0], disc[..., 1], disc[..., 4])).permute(1, 2, 0)
+    box_rows = movers.new_zeros(b, 0, 5)
+    if k:
+        box_rows = torch.stack((box[..., 0], box[..., 1], boxes[..., 0], boxes[..., 1], boxes[..., 2])).permute(1, 2, 0)
     return World(
         segments=movers.new_zeros(b, 0, 4), segment_mask=mask[:, :0],
-        circles=circles, circle_mask=circle_mask, boxes=boxes, box_mask=box_mask,
+        circles=circles, circle_mask=mask[:, : m - k], boxes=box_rows, box_mask=mask[:, m - k :],
         batch_size=[b], device=movers.device,
     )

@@ -43,9 +43,10 @@ class SimState:
     imu: Tensor  # (B, 3) [a_x m/s^2, a_y m/s^2, yaw rate rad/s] in the body frame; (B, 0) without an IMU
     imu_bias: Tensor  # (B, 3) the IMU's bias (same units); (B, 0) without an IMU
     cam_depth: Tensor  # (B, n_cols) camera depth row, m; (B, 0) without a camera
-    movers: Tensor  # (B, M, 9) moving obstacles (movers.py), (B, M, 12) with moving boxes; M may be 0
+    movers: Tensor  # (B, M, 9) moving obstacles (movers.py); M may be 0
     mover_mask: Tensor  # (B, M) bool, which mover slots exist
     mover_plan: Tensor  # (B, M, 4 + 2P) patrol and pedestrian waypoints; (B, M, 0) if all are ballistic
+    mover_boxes: Tensor  # (B, K, 3) [half_x, half_y, yaw] of the last K movers, which are boxes; K = 0: all discs
     cmd_queue: Tensor  # (B, K, 2) the last K commands, newest first, for actuator delay (randomize.py)
 
 

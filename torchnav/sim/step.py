@@ -13,7 +13,7 @@ from .geometry import disc_clearance
 from .imu import step_imu
 from .kinematics import apply_limits, integrate, unicycle_to_wheels, wheels_to_unicycle
 from .lidar import lidar_scan
-from .movers import Movers, mover_major, mover_world, no_movers, step_movers
+from .movers import BOX_FIELDS, N_MOVER_FIELDS, Movers, mover_major, mover_world, no_movers, step_movers
 from .params import SimParams
 from .randomize import EnvParams
 from .state import SimState, World, check_world, planar_world
@@ -82,14 +82,14 @@ def step(
         imu, imu_bias = step_imu(imu, imu_bias, vel, state.vel, state.time, params.imu, params.dt, generator)
     radius = params.robot_radius if env_params is None else env_params.robot_radius
     rows, plan = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius)
-    movers = Movers(rows, state.mover_mask, plan)
+    movers = Movers(rows, state.mover_mask, plan, state.mover_boxes)
     return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, queue, world, params, generator, unroll, env_params)
 
 
 def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, params, generator=None, unroll=None,
            env: EnvParams | None = None) -> SimState:
     """The state at ``pose`` with its collision, lidar and camera readings (movers included)."""
-    mw = mover_world(movers.rows, movers.mask) if movers.rows.shape[1] else None
+    mw = mover_world(movers.rows, movers.mask, movers.boxes) if movers.rows.shape[1] else None
     radius = params.robot_radius if env is None else env.robot_radius
     clearance = disc_clearance(pose, world, radius)
     if mw is not None:
@@ -109,6 +109,7 @@ def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, p
     return SimState(
         pose=pose, vel=vel, odom=odom, ranges=ranges, clearance=clearance, collided=clearance <= 0, time=time,
         imu=imu, imu_bias=imu_bias, cam_depth=depth, movers=movers.rows, mover_mask=movers.mask, mover_plan=movers.plan,
+        mover_boxes=movers.boxes,
         cmd_queue=queue, batch_size=[pose.shape[0]], device=pose.device,
     )
 
@@ -133,7 +134,7 @@ def init_state(
     """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
     scan, clearance and camera depth already computed. Odometry starts at the true pose; the
     IMU reads zero with zero bias. ``movers`` is a :class:`~torchnav.sim.movers.Movers`
-    (``make_movers``), or a pair ``(rows (B, M, 9 or 12), mask (B, M))`` of ballistic movers;
+    (``make_movers``), or a pair ``(rows (B, M, 9), mask (B, M))`` of ballistic discs;
     ``None`` means no moving obstacles. ``env_params`` (``randomize.py``) gives per-env
     radius and lidar imperfections for the first scan and clearance; ``delay_steps`` is the
     length of the command queue of the actuator delay (the longest delay), filled with
@@ -150,22 +151,28 @@ def init_state(
         movers = no_movers(b, pose)
     if len(movers) == 2:
         movers = Movers(*movers, movers[0].new_zeros(b, movers[0].shape[1], 0))
-    rows, mask, plan = movers
+    rows, mask, plan, boxes = Movers(*movers)
+    if boxes is None:
+        boxes = rows.new_zeros(b, 0, len(BOX_FIELDS))
     if plan.dim() != 3 or plan.shape[:2] != rows.shape[:2] or (plan.shape[2] and (plan.shape[2] < 6 or plan.shape[2] % 2)):
         raise ValueError(f"movers.plan must be ({b}, M, 4 + 2P) with P >= 1, or ({b}, M, 0), got {tuple(plan.shape)}")
-    if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] not in (9, 12) or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
-        raise ValueError(f"movers must be a ({b}, M, 9) (or, with boxes, ({b}, M, 12)) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}")
-    if rows.dtype != pose.dtype or rows.device != pose.device:
-        raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device}")
+    if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] != N_MOVER_FIELDS or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
+        raise ValueError(f"movers must be a ({b}, M, {N_MOVER_FIELDS}) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}"
+                         + (" (moving boxes' half extents and yaw now go in Movers.boxes, (B, K, 3))" if rows.dim() == 3 and rows.shape[2] == 12 else ""))
+    if boxes.dim() != 3 or boxes.shape[0] != b or boxes.shape[2] != len(BOX_FIELDS) or boxes.shape[1] > rows.shape[1]:
+        raise ValueError(f"movers.boxes must have shape ({b}, K, {len(BOX_FIELDS)}) with K <= {rows.shape[1]} (the last K movers are boxes), got {tuple(boxes.shape)}")
+    if rows.dtype != pose.dtype or rows.device != pose.device or boxes.dtype != pose.dtype or boxes.device != pose.device:
+        raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device} (boxes {boxes.dtype} on {boxes.device})")
     if plan.numel() == 0:  # canonical strides for an empty plan (an expanded one would make torch.compile recompile)
         plan = rows.new_zeros(plan.shape)
     else:
         plan = mover_major(plan.to(rows.dtype))
     if rows.shape[1]:  # the layout step_movers returns: the first step reads the same strides as the next ones
         rows = mover_major(rows)
+    boxes = mover_major(boxes) if boxes.shape[1] else rows.new_zeros(boxes.shape)  # carried unchanged by every step
     n_imu = 0 if params.imu is None else 3
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
-        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype)),
+        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype), boxes),
         pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
     )

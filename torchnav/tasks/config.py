@@ -166,11 +166,11 @@ class WorldsConfig:
     movers: dict[str, Any] = field(default_factory=dict)
 
     def mover_spec(self):
-        """``movers`` validated as a :class:`~torchnav.maps.spec.MovingCircles` (``ConfigError`` naming
+        """``movers`` validated as a :class:`~torchnav.maps.spec.RandomMovers` (``ConfigError`` naming
         ``worlds.movers.<key>``), or None when empty."""
         if not self.movers:
             return None
-        from ..maps.loader import _moving_circles
+        from ..maps.loader import random_movers
         from ..yamlcheck import Ctx
 
         class KeyCtx(Ctx):  # errors read "worlds.movers.<key>: ...", like the other config errors
@@ -181,7 +181,7 @@ class WorldsConfig:
             raise ConfigError(f"worlds.movers: expected a mapping like a map's moving_circles, got {self.movers!r}")
         if "region" in self.movers:
             raise ConfigError("worlds.movers.region: not allowed: movers move inside each generated world's bounds")
-        return _moving_circles(KeyCtx("", ConfigError), dict(self.movers), (math.inf, math.inf), "worlds.movers",
+        return random_movers(KeyCtx("", ConfigError), dict(self.movers), (math.inf, math.inf), "worlds.movers",
                                boxes="size_x" in self.movers or "size_y" in self.movers)
 
 

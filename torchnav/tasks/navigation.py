@@ -45,7 +45,7 @@ class NavTask(BatchedTask):
         self.max_radius = max(cfg.robot.radius, self.randomized.get("robot_radius", (0.0, 0.0))[1])
         # Moving discs placed at every reset: the map's moving_circles, or worlds.movers in every generated world.
         self.world_movers = cfg.worlds.mover_spec() if self.families else None
-        movers = self.world_movers if self.families else self.spec.moving_circles
+        movers = self.world_movers if self.families else self.spec.movers
         self.n_movers = movers.count if movers else 0
         self.weights = resolve_weights(cfg.reward)
         self.term_names = tuple(self.weights)

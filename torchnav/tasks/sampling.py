@@ -16,9 +16,9 @@ import torch
 from torch import Tensor
 
 from ..maps import MapSpec
-from ..maps.spec import MovingCircles, RandomCircles
+from ..maps.spec import RandomCircles, RandomMovers
 from ..sim import World, pad_world, points_clearance
-from ..sim.movers import PATROL, PEDESTRIAN, Movers
+from ..sim.movers import BOX_FIELDS, PATROL, PEDESTRIAN, Movers
 from ..worlds.layout import uniform
 
 _BIG = 1e9
@@ -201,7 +201,7 @@ class MoverSource:
     """What :func:`place_movers` reads of a map, for movers that are not a map's: the procedural
     worlds' ``worlds.movers`` inside each env's bounds (each edge a tensor broadcasting to ``(n, 1, 1)``)."""
 
-    moving_circles: MovingCircles
+    movers: RandomMovers
     bounds: tuple
 
 
@@ -209,8 +209,8 @@ def place_movers(
     world: World, spec: MapSpec | MoverSource, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> Movers:
-    """The map's ``moving_circles`` for a batch ``n`` of episodes (``movers (n, M, 9)``, or ``(n, M, 12)``
-    for ``moving_boxes``, ``mask (n, M)``, ``plan``).
+    """The map's movers (``moving_circles`` or ``moving_boxes``) for a batch ``n`` of episodes (``rows (n, M, 9)``, ``mask (n, M)``,
+    ``plan`` and ``boxes``: ``(n, M, 3)`` for ``moving_boxes``, every mover a box; ``(n, 0, 3)`` for discs).
 
     Positions are placed like random circles (:func:`place_random_objects`: ``clearance`` from
     the start and the goal, ``margin`` from every obstacle of ``world``, including this
@@ -219,7 +219,7 @@ def place_movers(
     patrols and pedestrians get ``waypoints`` points uniform in the region (shrunk by
     their radius) and head for the first.
     """
-    mc = spec.moving_circles
+    mc = spec.movers
     n, like = start_xy.shape[0], start_xy
     region = mc.region or spec.bounds
     shim = _MoverPlacement(world.boxes.shape[1], world.circles.shape[1], region,
@@ -232,10 +232,12 @@ def place_movers(
     box = (-math.inf, -math.inf, math.inf, math.inf) if mc.motion == "constant" else region
     box = torch.stack([torch.as_tensor(e, dtype=like.dtype, device=like.device).reshape(-1, 1).expand(n, mc.count) for e in box], -1)
     rows = torch.cat((disc[..., :2], torch.stack((speed * torch.cos(heading), speed * torch.sin(heading)), -1), disc[..., 2:3], box), -1)
+    boxes = like.new_zeros(n, 0, len(BOX_FIELDS))
     if mc.size_x is not None:  # moving boxes, placed by the largest box's bounding circle
         hx, hy = (0.5 * uniform(lo, hi, (n, mc.count), generator, like) for lo, hi in (mc.size_x, mc.size_y))
         yaw = uniform(mc.yaw[0], mc.yaw[1], (n, mc.count), generator, like)
-        rows = torch.cat((rows[..., :4], torch.hypot(hx, hy)[..., None], rows[..., 5:], torch.stack((hx, hy, yaw), -1)), -1)
+        rows = torch.cat((rows[..., :4], torch.hypot(hx, hy)[..., None], rows[..., 5:]), -1)
+        boxes = torch.stack((hx, hy, yaw), -1)
         disc = torch.cat((disc[..., :2], rows[..., 4:5]), -1)  # waypoints keep each box's own bounding circle inside the region
     plan = like.new_zeros(n, mc.count, 0)
     if mc.motion in ("patrol", "pedestrian"):
@@ -245,4 +247,4 @@ def place_movers(
         kind = PEDESTRIAN if mc.motion == "pedestrian" else PATROL
         head = torch.stack((torch.full_like(speed, kind), speed, torch.zeros_like(speed), torch.full_like(speed, p)), -1)
         plan = torch.cat((head, torch.stack((wx, wy), -1).flatten(-2)), -1)
-    return Movers(rows, mask, plan)
+    return Movers(rows, mask, plan, boxes)
