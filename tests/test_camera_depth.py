@@ -83,7 +83,7 @@ def test_depth_and_image_equal_the_reference_on_random_worlds(seed):
     movers = make_movers(1, [[0.0, 0.0, 0.0, 0.0, 0.3]] * 2, boxes=[[0.0, 0.0, 0.0, 0.0, 0.3, 0.2, 0.5]])
     mrows = movers.rows.expand(b, -1, -1).clone()
     mrows[..., :2] = torch.rand(b, 3, 2, generator=g) * 6 - 3  # 2 discs and a box at random
-    mw = mover_world(mrows, movers.mask.expand(b, -1))
+    mw = mover_world(mrows, movers.mask.expand(b, -1), movers.boxes.expand(b, -1, -1))
     assert mw.boxes.shape[1] and mw.circles.shape[1]  # movers of both kinds
     ref = reference_depth(pose, world, CAM, mw)
     depth = camera_depth(pose, world, CAM, mw)
