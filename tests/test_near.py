@@ -135,6 +135,7 @@ def test_near_state_must_match_the_params_and_near_slots_is_checked():
             SimParams(near_slots=bad)
 
 
+@pytest.mark.slow  # compiling the near step takes minutes (docs/performance.md, "Dense worlds")
 def test_near_step_compiled_equals_the_whole_world_step():
     b = 32
     world = dense_world(b, seed=6)
