@@ -7,9 +7,6 @@ Loads (per env, random and different in every env; one robot, random twists):
 * ``dense-sectors`` a 20 x 20 m walled room with 300 posts (circles, radius 0.05-0.3 m)
                     and 100 boxes (0.2-0.8 m sides), the exact sector scan with 20
                     sectors over 360 degrees, 10 m range;
-* ``dense-near``    dense-sectors with ``near_slots=96``: each step scans the 96 obstacles
-                    kept near the robot in the state (and the walls), the whole world only
-                    in the envs where they may not suffice (``torchnav/sim/near.py``);
 * ``dense-rays``    the same worlds, 180 rays over 360 degrees (2-degree spacing);
 * ``dense-brute``   dense-rays with the broad phase off (every ray against every
                     obstacle), as every version before the broad phase ran it.
@@ -23,7 +20,7 @@ gives exactly (``scan_is_exact``, after the timed steps).
     python bench/dense_lidar.py                  # 4,096 envs, eager and compiled
     python bench/dense_lidar.py --quick          # a seconds-long smoke run (64 envs, eager)
     python bench/dense_lidar.py --num-envs 1024 --modes compiled --json
-    python bench/dense_lidar.py --threads 1 --cpu-time --loads standard,dense-sectors,dense-near --modes compiled   # a shared machine
+    python bench/dense_lidar.py --threads 1 --cpu-time --loads standard,dense-sectors --modes compiled   # a shared machine
 """
 
 from __future__ import annotations
@@ -51,11 +48,9 @@ LOADS = {
     # The broad phase tuned for these worlds: one boundary ray per obstacle for the sectors,
     # 5 rays per obstacle for the ray scan, 16 wide obstacles per kind on every ray.
     "dense-sectors": LidarParams(n_rays=20, fov=2 * math.pi, max_range=10.0, scan="sectors", window=0, dense_slots=16),
-    "dense-near": LidarParams(n_rays=20, fov=2 * math.pi, max_range=10.0, scan="sectors", window=0, dense_slots=16),
     "dense-rays": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0, window=2, dense_slots=16),
     "dense-brute": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0, dense_slots=10**9),
 }
-NEAR_SLOTS = {"dense-near": 96}  # SimParams.near_slots of each load (0 when not named)
 TARGET_DENSE = 250_000  # env-steps/s at 4,096 envs, compiled, 2 CPU threads
 TARGET_RATIO = 10.0  # the dense load within 10x of the standard load
 
@@ -85,7 +80,7 @@ def make_dense(num_envs: int, params: SimParams, seed: int = 0) -> tuple[Any, Wo
 
 
 def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) -> dict[str, Any]:
-    params = replace(SimParams(), lidar=LOADS[load], near_slots=NEAR_SLOTS.get(load, 0))
+    params = replace(SimParams(), lidar=LOADS[load])
     state, world, actions = make_load(num_envs, "cpu", args.seed, params) if load == "standard" else make_dense(num_envs, params, args.seed)
     rec: dict[str, Any] = {"bench": "dense_lidar", "load": load, "mode": mode, "num_envs": num_envs, "obstacles": int(world.segment_mask[0].sum() + world.circle_mask[0].sum() + world.box_mask[0].sum()),
                            "readings": params.lidar.n_rays, "scan": params.lidar.scan, "compile_s": None,
@@ -155,17 +150,14 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
     print("\n   ratios (same run):", file=log)
     for mode in args.modes:
         std = rate.get(("standard", mode))
-        for load in ("dense-sectors", "dense-near", "dense-rays"):
+        for load in ("dense-sectors", "dense-rays"):
             if std and (load, mode) in rate:
                 print(f"   {mode:>8}: standard / {load} = x{std / rate[(load, mode)]:.1f} (target <= x{TARGET_RATIO:g})", file=log)
         if ("dense-brute", mode) in rate and ("dense-rays", mode) in rate:
             print(f"   {mode:>8}: dense-rays broad phase / brute force = x{rate[('dense-rays', mode)] / rate[('dense-brute', mode)]:.1f}", file=log)
-        for load in ("dense-sectors", "dense-near"):
-            if (load, mode) in rate and mode == "compiled":
-                r = rate[(load, mode)]
-                print(f"   {mode:>8}: {load} {common.human_rate(r)} env-steps/s = x{r / TARGET_DENSE:.2f} of the {common.human_rate(TARGET_DENSE)} target", file=log)
-        if ("dense-sectors", mode) in rate and ("dense-near", mode) in rate:
-            print(f"   {mode:>8}: dense-near / dense-sectors = x{rate[('dense-near', mode)] / rate[('dense-sectors', mode)]:.2f}", file=log)
+        if ("dense-sectors", mode) in rate and mode == "compiled":
+            r = rate[("dense-sectors", mode)]
+            print(f"   {mode:>8}: dense-sectors {common.human_rate(r)} env-steps/s = x{r / TARGET_DENSE:.2f} of the {common.human_rate(TARGET_DENSE)} target", file=log)
     return records
 
 

@@ -72,8 +72,8 @@ def test_dense_lidar_quick_json():
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     rows = {r["load"]: r for r in _json_lines(p.stdout)}
-    assert set(rows) == {"standard", "dense-sectors", "dense-near", "dense-rays", "dense-brute"}
+    assert set(rows) == {"standard", "dense-sectors", "dense-rays", "dense-brute"}
     assert rows["standard"]["obstacles"] == 12 and rows["dense-sectors"]["obstacles"] == 404
     assert all(_positive(r["env_steps_per_s"]) and r["mode"] == "eager" and r["clock"] == "cpu" for r in rows.values())
-    assert all(0.0 <= rows[k]["exact_envs_frac"] <= 1.0 for k in ("standard", "dense-sectors", "dense-near", "dense-rays"))
+    assert all(0.0 <= rows[k]["exact_envs_frac"] <= 1.0 for k in ("standard", "dense-sectors", "dense-rays"))
     assert "standard / dense-sectors" in p.stderr  # the ratios went to stderr

@@ -72,22 +72,10 @@ def lidar_scan(
     as well: the scan of the union of two worlds is the minimum of their scans.
     """
     fan = lidar_fan(pose, lidar)
-    ranges = fan_scan(fan, world, lidar, unroll)
-    if movers is not None:
-        ranges = torch.minimum(ranges, fan_scan(fan, movers, lidar, unroll))
-    return finish_scan(ranges, lidar, generator)
-
-
-def fan_scan(fan: RayFan, world: World, lidar: LidarParams, unroll: bool | None = None) -> Tensor:
-    """Raw readings ``(B, n)`` of ``lidar``'s fan (``lidar_fan``) in ``world``: the ray cast or the
-    exact sector scan, ``inf`` where nothing is seen; no noise, no clamping."""
     scan = sector_ranges if lidar.scan == "sectors" else cast_fan
-    return scan(fan, world, lidar.window, lidar.dense_slots, unroll)
-
-
-def finish_scan(ranges: Tensor, lidar: LidarParams, generator: torch.Generator | None = None) -> Tensor:
-    """Raw readings ``(B, n)`` as the lidar reports them: Gaussian noise (with a generator and
-    ``noise_std > 0``), then clamped to ``[min_range, max_range]``."""
+    ranges = scan(fan, world, lidar.window, lidar.dense_slots, unroll)
+    if movers is not None:
+        ranges = torch.minimum(ranges, scan(fan, movers, lidar.window, lidar.dense_slots, unroll))
     if lidar.noise_std > 0 and generator is not None:
         ranges = ranges + lidar.noise_std * torch.randn(ranges.shape, generator=generator, dtype=ranges.dtype, device=ranges.device)
     return ranges.clamp(lidar.min_range, lidar.max_range)

@@ -153,7 +153,6 @@ class SimParams:
     lidar: LidarParams = field(default_factory=LidarParams)
     imu: ImuParams | None = None  # None: no IMU (state.imu is (B, 0))
     camera: CameraParams | None = None  # None: no camera (state.cam_depth is (B, 0))
-    near_slots: int = 0  # dense worlds: obstacles per env kept near the robot in the state and scanned each step (0: all; near.py)
 
     def __post_init__(self) -> None:
         _require(self.dt > 0, f"dt must be > 0 s, got {self.dt!r}")
@@ -167,5 +166,3 @@ class SimParams:
         _require(isinstance(self.lidar, LidarParams), f"lidar must be a LidarParams, got {type(self.lidar).__name__}")
         _require(self.imu is None or isinstance(self.imu, ImuParams), f"imu must be an ImuParams or None, got {type(self.imu).__name__}")
         _require(self.camera is None or isinstance(self.camera, CameraParams), f"camera must be a CameraParams or None, got {type(self.camera).__name__}")
-        _require(isinstance(self.near_slots, int) and not isinstance(self.near_slots, bool) and self.near_slots >= 0,
-                 f"near_slots must be an int >= 0, got {self.near_slots!r}")

@@ -48,9 +48,6 @@ class SimState:
     mover_plan: Tensor  # (B, M, 4 + 2P) patrol and pedestrian waypoints; (B, M, 0) if all are ballistic
     mover_boxes: Tensor  # (B, K, 3) [half_x, half_y, yaw] of the last K movers, which are boxes; K = 0: all discs
     cmd_queue: Tensor  # (B, K, 2) the last K commands, newest first, for actuator delay (randomize.py)
-    near: World  # the obstacles kept near each robot (near.py); no slots without SimParams.near_slots
-    near_centre: Tensor  # (B, 2) m, where the robot was when they were chosen
-    near_bound: Tensor  # (B,) m, lower bound of the distance from near_centre to every obstacle left out
 
 
 _KIND_MASKS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))

@@ -12,9 +12,8 @@ from .camera import camera_depth
 from .geometry import disc_clearance
 from .imu import step_imu
 from .kinematics import apply_limits, integrate, unicycle_to_wheels, wheels_to_unicycle
-from .lidar import finish_scan, lidar_scan
+from .lidar import lidar_scan
 from .movers import BOX_FIELDS, N_MOVER_FIELDS, Movers, mover_major, mover_world, no_movers, step_movers
-from .near import check_near, near_counts, near_sense, select_near
 from .params import SimParams
 from .randomize import EnvParams
 from .state import SimState, World, check_world, planar_world
@@ -64,7 +63,6 @@ def step(
     """
     check_action(action, state)
     check_world(world, state.pose.shape[0], state.pose.dtype, state.pose.device)
-    check_near(state.near, world, params.near_slots)
     world = planar_world(world)
     cmd = wheels_to_unicycle(action, params.track_width) if wheel_speeds else action
     queue = state.cmd_queue
@@ -85,26 +83,22 @@ def step(
     radius = params.robot_radius if env_params is None else env_params.robot_radius
     rows, plan = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius)
     movers = Movers(rows, state.mover_mask, plan, state.mover_boxes)
-    near = (state.near, state.near_centre, state.near_bound)
-    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, queue, world, near, params, generator, unroll, env_params)
+    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, queue, world, params, generator, unroll, env_params)
 
 
-def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, near, params, generator=None, unroll=None,
+def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, params, generator=None, unroll=None,
            env: EnvParams | None = None) -> SimState:
-    """The state at ``pose`` with its collision, lidar and camera readings (movers included); ``near``
-    is the previous state's ``(near, near_centre, near_bound)``."""
+    """The state at ``pose`` with its collision, lidar and camera readings (movers included)."""
     mw = mover_world(movers.rows, movers.mask, movers.boxes) if movers.rows.shape[1] else None
     radius = params.robot_radius if env is None else env.robot_radius
-    sensor = pose if env is None else torch.cat((pose[:, :2], pose[:, 2:] + env.angle_offset[:, None]), -1)  # misaligned per env
-    if any(near_counts(world, params.near_slots).values()):
-        dist, raw, *near = near_sense(pose, sensor, world, *near, params.lidar, params.near_slots, mw, unroll)
-        clearance, ranges = dist - radius, finish_scan(raw, params.lidar, generator)
-    else:
-        clearance = disc_clearance(pose, world, radius)
-        if mw is not None:
-            clearance = torch.minimum(clearance, disc_clearance(pose, mw, radius))
-        ranges = lidar_scan(sensor, world, params.lidar, generator, unroll=unroll, movers=mw)
-    if env is not None:  # per-env noise and dropout, a shorter range
+    clearance = disc_clearance(pose, world, radius)
+    if mw is not None:
+        clearance = torch.minimum(clearance, disc_clearance(pose, mw, radius))
+    if env is None:
+        ranges = lidar_scan(pose, world, params.lidar, generator, unroll=unroll, movers=mw)
+    else:  # a misaligned sensor, per-env noise and dropout, a shorter range
+        turned = torch.cat((pose[:, :2], pose[:, 2:] + env.angle_offset[:, None]), -1)
+        ranges = lidar_scan(turned, world, params.lidar, generator, unroll=unroll, movers=mw)
         far = env.max_range[:, None]
         if generator is not None:
             ranges = ranges + env.range_noise[:, None] * torch.randn(ranges.shape, generator=generator, dtype=ranges.dtype, device=ranges.device)
@@ -116,7 +110,7 @@ def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, n
         pose=pose, vel=vel, odom=odom, ranges=ranges, clearance=clearance, collided=clearance <= 0, time=time,
         imu=imu, imu_bias=imu_bias, cam_depth=depth, movers=movers.rows, mover_mask=movers.mask, mover_plan=movers.plan,
         mover_boxes=movers.boxes,
-        cmd_queue=queue, near=near[0], near_centre=near[1], near_bound=near[2], batch_size=[pose.shape[0]], device=pose.device,
+        cmd_queue=queue, batch_size=[pose.shape[0]], device=pose.device,
     )
 
 
@@ -177,11 +171,8 @@ def init_state(
         rows = mover_major(rows)
     boxes = mover_major(boxes) if boxes.shape[1] else rows.new_zeros(boxes.shape)  # carried unchanged by every step
     n_imu = 0 if params.imu is None else 3
-    world = planar_world(world)
-    centre = pose[:, :2].detach().clone()
-    near = select_near(centre, world, near_counts(world, params.near_slots))
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
         pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype), boxes),
-        pose.new_zeros(b, delay_steps, 2), world, (near[0], centre, near[1]), params, env=env_params,
+        pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
     )
