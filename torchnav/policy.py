@@ -146,10 +146,14 @@ class RecurrentActor(_Normalised):
 
     def step(self, obs: torch.Tensor, state: torch.Tensor, is_init: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``obs (B, obs_size)``, ``state (B, state_size)``, ``is_init (B,)`` bool -> ``(out (B, out_size), next state)``."""
+        h = self._advance(self.encoder(self.normalised(obs)), state, is_init)
+        return self._out(h), h
+
+    def _advance(self, x: torch.Tensor, state: torch.Tensor, is_init: torch.Tensor | None) -> torch.Tensor:
+        """One GRU step from the encoded observation ``x``, the state zeroed where ``is_init``."""
         if is_init is not None:
             state = torch.where(is_init[..., None], torch.zeros_like(state), state)
-        h = self.cell(self.encoder(self.normalised(obs)), state)
-        return self._out(h), h
+        return self.cell(x, state)
 
     def unroll(self, obs: torch.Tensor, state: torch.Tensor, is_init: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``obs (B, T, obs_size)`` from ``state (B, state_size)`` before the first step, ``is_init (B, T)``
@@ -157,7 +161,7 @@ class RecurrentActor(_Normalised):
         x = self.encoder(self.normalised(obs))  # the MLP on every step at once; only the cell runs step by step
         hs = []
         for t in range(obs.shape[1]):
-            state = self.cell(x[:, t], torch.where(is_init[:, t, None], torch.zeros_like(state), state))
+            state = self._advance(x[:, t], state, is_init[:, t])
             hs.append(state)
         h = torch.stack(hs, 1)
         return self._out(h), h

@@ -245,15 +245,21 @@ def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tenso
     return p, v
 
 
+def check_mover_boxes(boxes: Tensor, b: int, m: int) -> int:
+    """Check the shapes ``(b, K, 3)`` of the last ``K <= m`` movers, which are boxes; returns ``K``."""
+    if boxes.dim() != 3 or boxes.shape[0] != b or boxes.shape[2] != len(BOX_FIELDS) or boxes.shape[1] > m:
+        raise ValueError(f"mover boxes must have shape ({b}, K, {len(BOX_FIELDS)}) with K <= {m} (the last K movers are "
+                         f"boxes), got {tuple(boxes.shape)}")
+    return boxes.shape[1]
+
+
 def mover_world(movers: Tensor, mask: Tensor, boxes: Tensor | None = None) -> World:
     """The movers ``(B, M, 9)`` as a :class:`World` of circles ``[x, y, radius]`` (the first
     ``M - K`` slots) and boxes ``[x, y, half_x, half_y, yaw]`` (the last ``K``, whose shapes are
     ``boxes`` ``(B, K, 3)``; ``None``: no boxes); no walls; stored component-major
     (``planar_rows``): read without a copy."""
     b, m = movers.shape[:2]
-    k = 0 if boxes is None else boxes.shape[1]
-    if boxes is not None and (boxes.dim() != 3 or boxes.shape[0] != b or boxes.shape[2] != len(BOX_FIELDS) or k > m):
-        raise ValueError(f"mover boxes must have shape ({b}, K, {len(BOX_FIELDS)}) with K <= {m}, got {tuple(boxes.shape)}")
+    k = 0 if boxes is None else check_mover_boxes(boxes, b, m)
     disc, box = movers[:, : m - k], movers[:, m - k :]
     circles = torch.stack((disc[..., 0], disc[..., 1], disc[..., 4])).permute(1, 2, 0)
     box_rows = movers.new_zeros(b, 0, 5)

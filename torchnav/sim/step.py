@@ -13,7 +13,7 @@ from .geometry import disc_clearance
 from .imu import step_imu
 from .kinematics import apply_limits, integrate, unicycle_to_wheels, wheels_to_unicycle
 from .lidar import lidar_scan
-from .movers import BOX_FIELDS, N_MOVER_FIELDS, Movers, mover_major, mover_world, no_movers, step_movers
+from .movers import BOX_FIELDS, N_MOVER_FIELDS, Movers, check_mover_boxes, mover_major, mover_world, no_movers, step_movers
 from .params import SimParams
 from .randomize import EnvParams
 from .state import SimState, World, check_world, planar_world
@@ -159,8 +159,7 @@ def init_state(
     if rows.dim() != 3 or rows.shape[0] != b or rows.shape[2] != N_MOVER_FIELDS or mask.shape != rows.shape[:2] or mask.dtype != torch.bool:
         raise ValueError(f"movers must be a ({b}, M, {N_MOVER_FIELDS}) tensor and a ({b}, M) bool mask, got {tuple(rows.shape)} and {mask.dtype} {tuple(mask.shape)}"
                          + (" (moving boxes' half extents and yaw now go in Movers.boxes, (B, K, 3))" if rows.dim() == 3 and rows.shape[2] == 12 else ""))
-    if boxes.dim() != 3 or boxes.shape[0] != b or boxes.shape[2] != len(BOX_FIELDS) or boxes.shape[1] > rows.shape[1]:
-        raise ValueError(f"movers.boxes must have shape ({b}, K, {len(BOX_FIELDS)}) with K <= {rows.shape[1]} (the last K movers are boxes), got {tuple(boxes.shape)}")
+    check_mover_boxes(boxes, b, rows.shape[1])
     if rows.dtype != pose.dtype or rows.device != pose.device or boxes.dtype != pose.dtype or boxes.device != pose.device:
         raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device} (boxes {boxes.dtype} on {boxes.device})")
     if plan.numel() == 0:  # canonical strides for an empty plan (an expanded one would make torch.compile recompile)
