@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 SIM_KEYS = {"device", "num_envs", "mode", "env_steps_per_s", "peak_mem_bytes", "peak_mem_method", "env_steps_per_s_min", "env_steps_per_s_max"}
 ENV_KEYS = {"device", "num_envs", "mode", "env_steps_per_s", "peak_mem_bytes"}
@@ -77,3 +79,21 @@ def test_dense_lidar_quick_json():
     assert all(_positive(r["env_steps_per_s"]) and r["mode"] == "eager" and r["clock"] == "cpu" for r in rows.values())
     assert all(0.0 <= rows[k]["exact_envs_frac"] <= 1.0 for k in ("standard", "dense-sectors", "dense-rays"))
     assert "standard / dense-sectors" in p.stderr  # the ratios went to stderr
+
+
+@pytest.mark.slow
+def test_compiled_options_compile_once_each():
+    """Each option's compiled step is compiled once, before the timed runs: none recompiles inside them
+    (a dynamo reset per option used to drop the earlier options' graphs, and past the recompile limit
+    an option ran eager)."""
+    spec = importlib.util.spec_from_file_location("sim_throughput", ROOT / "bench" / "sim_throughput.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    from torch._dynamo.utils import counters
+
+    counters.clear()
+    rows = bench.main(["--device", "cpu", "--threads", "1", "--sizes", "8", "--modes", "compiled", "--options", "imu,movers4",
+                       "--repeats", "2", "--steps", "2", "--warmup", "0"])
+    rows = [r for r in rows if r.get("bench") == "sim_throughput"]
+    assert [r["option"] for r in rows] == ["plain", "imu", "movers4"] and not [r for r in rows if r.get("error")]
+    assert counters["frames"]["ok"] == 3, dict(counters["frames"])
