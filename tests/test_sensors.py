@@ -381,6 +381,23 @@ def test_pedestrians_avoid_each_other_and_the_robot():
     assert touched
 
 
+def test_pedestrians_ignore_movers_that_are_masked_off():
+    """A pedestrian walks as if alone past a masked-off mover in its way, and swerves when it exists."""
+    discs = [[-2.0, 0.05, 0.6, 0.0, 0.25], [0.0, 0.0, 0.0, 0.0, 0.25]]
+    paths = [[[2.0, 0.0]], [[0.0, 0.0]]]
+    params, world, robot = SimParams(), make_world(1), torch.tensor([[0.0, 5.0, 0.0]])
+    alone = init_state(robot, world, params, movers=make_movers(1, discs[:1], waypoints=paths[:1], pedestrians=True))
+    rows, mask, plan, boxes = make_movers(1, discs, waypoints=paths, pedestrians=True)
+    masked = init_state(robot, world, params, movers=(rows, torch.tensor([[True, False]]), plan, boxes))
+    present = init_state(robot, world, params, movers=(rows, mask, plan, boxes))
+    swerve = 0.0
+    for _ in range(40):
+        alone, masked, present = (step(s, torch.zeros(1, 2), world, params) for s in (alone, masked, present))
+        torch.testing.assert_close(masked.movers[:, :1], alone.movers)
+        swerve = max(swerve, (present.movers[0, 0, :2] - alone.movers[0, 0, :2]).norm().item())
+    assert swerve > 0.05
+
+
 def test_task_places_pedestrians_with_waypoints_in_their_region(tmp_path):
     from torchnav.envs import make_nav_env
 
