@@ -108,7 +108,7 @@ def test_box_shapes_in_the_wrong_place_are_refused_naming_the_layout():
     with pytest.raises(ValueError, match=r"Movers\.boxes"):
         init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(old, mask, plan))
     with pytest.raises(ValueError, match="separate tensor"):
-        step_movers(old, plan, mask, 0.1, torch.zeros(2, 2), 0.2)
+        step_movers(old, plan, mask, 0.1, torch.zeros(2, 2), 0.2, torch.zeros(2, 0))
     with pytest.raises(ValueError, match=r"the last K movers are boxes"):
         init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(rows, mask, plan, torch.zeros(2, 3, 3)))
     with pytest.raises(ValueError, match=r"mover boxes must have shape \(2, K, 3\)"):

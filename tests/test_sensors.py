@@ -348,7 +348,8 @@ def test_patrol_follows_its_waypoints_at_its_speed():
         (ax, ay), (bx, by) = corners[side], corners[(side + 1) % 4]
         want = (ax + (bx - ax) * along / 20, ay + (by - ay) * along / 20)
         assert s.movers[0, 0, :2].tolist() == pytest.approx(want, abs=1e-4), k
-    assert states[30].mover_plan[0, 0, 2].item() == 1  # heading for the second waypoint
+    assert states[30].mover_target[0, 0].item() == 1  # heading for the second waypoint
+    assert all(s.mover_plan.data_ptr() == states[0].mover_plan.data_ptr() for s in states)  # the plan is carried, never copied
 
 
 def test_pedestrians_avoid_each_other_and_the_robot():
@@ -378,6 +379,23 @@ def test_pedestrians_avoid_each_other_and_the_robot():
         s = step(s, torch.zeros(1, 2), world, params)
         touched |= (s.movers[0, 0, :2] - s.movers[0, 1, :2]).norm().item() < 0.5
     assert touched
+
+
+def test_pedestrians_ignore_movers_that_are_masked_off():
+    """A pedestrian walks as if alone past a masked-off mover in its way, and swerves when it exists."""
+    discs = [[-2.0, 0.05, 0.6, 0.0, 0.25], [0.0, 0.0, 0.0, 0.0, 0.25]]
+    paths = [[[2.0, 0.0]], [[0.0, 0.0]]]
+    params, world, robot = SimParams(), make_world(1), torch.tensor([[0.0, 5.0, 0.0]])
+    alone = init_state(robot, world, params, movers=make_movers(1, discs[:1], waypoints=paths[:1], pedestrians=True))
+    rows, mask, plan, boxes = make_movers(1, discs, waypoints=paths, pedestrians=True)
+    masked = init_state(robot, world, params, movers=(rows, torch.tensor([[True, False]]), plan, boxes))
+    present = init_state(robot, world, params, movers=(rows, mask, plan, boxes))
+    swerve = 0.0
+    for _ in range(40):
+        alone, masked, present = (step(s, torch.zeros(1, 2), world, params) for s in (alone, masked, present))
+        torch.testing.assert_close(masked.movers[:, :1], alone.movers)
+        swerve = max(swerve, (present.movers[0, 0, :2] - alone.movers[0, 0, :2]).norm().item())
+    assert swerve > 0.05
 
 
 def test_task_places_pedestrians_with_waypoints_in_their_region(tmp_path):
@@ -494,8 +512,8 @@ def test_randomize_config_errors_and_evaluation_switch():
 
 
 def test_movers_are_stepped_mover_major_with_the_same_results():
-    """step_movers returns (and init_state holds) movers and plans stored mover-major, so the next
-    step reads them without a copy; a contiguous input gives bit-identical values."""
+    """step_movers returns (and init_state holds) movers and waypoint targets stored mover-major, so the
+    next step reads them without a copy; a contiguous input gives bit-identical values."""
     from torchnav.sim.movers import is_mover_major, mover_major, step_movers
 
     discs = [[-1.0, 0.0, 0.4, 0.1, 0.3], [1.0, 0.2, -0.3, 0.0, 0.25], [0.0, 1.0, 0.0, -0.5, 0.2]]
@@ -503,9 +521,14 @@ def test_movers_are_stepped_mover_major_with_the_same_results():
                                    pedestrians=True)
     robot = torch.tensor([[0.5, 0.5]]).expand(5, 2)
     assert not is_mover_major(rows) and is_mover_major(mover_major(rows)) and torch.equal(mover_major(rows), rows)
-    a_rows, a_plan = step_movers(rows, plan, mask, 0.1, robot, 0.2)
-    b_rows, b_plan = step_movers(mover_major(rows), mover_major(plan), mask, 0.1, robot, 0.2)
-    assert torch.equal(a_rows, b_rows) and torch.equal(a_plan, b_plan)
-    assert is_mover_major(a_rows) and is_mover_major(a_plan) and a_rows.shape == rows.shape and a_plan.shape == plan.shape
+    target = plan[..., 2]
+    a_rows, a_target = step_movers(rows, plan, mask, 0.1, robot, 0.2, target)
+    b_rows, b_target = step_movers(mover_major(rows), mover_major(plan), mask, 0.1, robot, 0.2, target.t().contiguous().t())
+    assert torch.equal(a_rows, b_rows) and torch.equal(a_target, b_target)
+    assert is_mover_major(a_rows) and a_target.t().is_contiguous() and a_rows.shape == rows.shape and a_target.shape == target.shape
     s = init_state(torch.zeros(5, 3), make_world(5), SimParams(), movers=(rows, mask, plan))
     assert is_mover_major(s.movers) and is_mover_major(s.mover_plan) and torch.equal(s.movers, rows)
+    assert s.mover_target.stride() == a_target.stride() and torch.equal(s.mover_target, target)  # the step's layout, not a view
+    assert s.mover_target.data_ptr() != s.mover_plan.data_ptr() + 2 * s.mover_plan.stride(2) * s.mover_plan.element_size()
+    with pytest.raises(ValueError, match=r"target must have shape \(5, 3\)"):
+        step_movers(rows, plan, mask, 0.1, robot, 0.2, target[:, :2])

@@ -34,9 +34,12 @@ Three kinds of motion:
 
 Patrols and pedestrians keep their plan in ``SimState.mover_plan`` ``(B, M, 4 + 2P)``:
 ``kind`` (``BALLISTIC``, ``PATROL``, ``PEDESTRIAN``), cruising ``speed`` (m/s), the
-index of the next waypoint, the number of waypoints ``n`` (1 to ``P``), then ``P``
-waypoints ``x, y`` (m). Without any patrol or pedestrian the plan is ``(B, M, 0)`` and
-costs nothing. Every mover also applies its region (unbounded for most patrols).
+index of the waypoint to head for first, the number of waypoints ``n`` (1 to ``P``), then ``P``
+waypoints ``x, y`` (m). The plan is carried unchanged from step to step (never copied); the
+index of the waypoint each mover heads for now is ``SimState.mover_target`` ``(B, M)``, which
+``init_state`` takes from the plan and the step advances. Without any patrol or pedestrian
+the plan is ``(B, M, 0)``, the target ``(B, 0)``, and they cost nothing. Every mover
+also applies its region (unbounded for most patrols).
 Masked slots move too but are seen by nothing. The lidar, the camera and collision
 treat a mover like a static circle (or box) at its position after the step; movers
 pass through walls and static obstacles.
@@ -152,26 +155,30 @@ def no_movers(batch_size: int, like: Tensor) -> Movers:
                   like.new_zeros(batch_size, 0, 0), like.new_zeros(batch_size, 0, len(BOX_FIELDS)))
 
 
-def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[Tensor, Tensor]:
-    """Every mover ``(B, M, 9)`` and its plan advanced by ``dt`` s (module docstring). Pure.
+def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor,
+                target: Tensor) -> tuple[Tensor, Tensor]:
+    """Every mover ``(B, M, 9)`` advanced by ``dt`` s, and the waypoint index ``target`` ``(B, M)`` each
+    patrol and pedestrian heads for after it (module docstring). Pure; ``plan`` is only read.
 
     ``robot_xy`` ``(B, 2)`` and ``robot_radius`` (m, or ``(B,)``) are what pedestrians avoid besides each other.
 
     The results have the shapes of the inputs but are stored mover-major (``mover_major``:
-    ``movers[..., k]`` is a contiguous ``(M, B)`` block), the layout the maths runs in, so a
-    state stepped again is read without a copy."""
+    ``movers[..., k]`` and ``target`` are contiguous ``(M, B)`` blocks), the layout the maths runs
+    in, so a state stepped again is read without a copy."""
     if movers.shape[-1] != N_MOVER_FIELDS:
         raise ValueError(f"movers must have {N_MOVER_FIELDS} columns {MOVER_FIELDS}, got {tuple(movers.shape)} (boxes' shapes are a separate tensor)")
+    if plan.shape[-1] and target.shape != plan.shape[:2]:
+        raise ValueError(f"movers: target must have shape {tuple(plan.shape[:2])} (one waypoint index per mover), got {tuple(target.shape)}")
     if movers.shape[1] == 0:
-        return movers, plan
+        return movers, target
     cols = mover_major(movers)  # (B, M, 9) viewed from (9, M, B) storage
     x, y, vx, vy, r, xmin, ymin, xmax, ymax = (cols[..., k].t() for k in range(N_MOVER_FIELDS))  # (M, B) each
     if plan.shape[-1]:
-        plan = mover_major(plan)
-        (vx, vy), plan = _steer((x, y, vx, vy, r), plan, mask, dt, robot_xy, robot_radius)
+        (vx, vy), target = _steer((x, y, vx, vy, r), mover_major(plan), target.t(), mask, dt, robot_xy, robot_radius)
+        target = target.t()
     x, vx = _bounce(x + vx * dt, vx, xmin + r, xmax - r)
     y, vy = _bounce(y + vy * dt, vy, ymin + r, ymax - r)
-    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax)).permute(2, 1, 0), plan
+    return torch.stack((x, y, vx, vy, r, xmin, ymin, xmax, ymax)).permute(2, 1, 0), target
 
 
 def is_mover_major(x: Tensor) -> bool:
@@ -186,17 +193,17 @@ def mover_major(x: Tensor) -> Tensor:
     return x if is_mover_major(x) else _planar_copy(x.transpose(0, 1)).permute(2, 1, 0)
 
 
-def _steer(cols: tuple[Tensor, ...], plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
+def _steer(cols: tuple[Tensor, ...], plan: Tensor, target: Tensor, mask: Tensor, dt: float, robot_xy: Tensor,
+           robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
     """New velocities ``(M, B)`` of patrols and pedestrians (ballistic movers keep theirs) and the
-    mover-major plan ``(B, M, 4 + 2P)`` with reached waypoints advanced.
+    waypoint index ``target`` ``(M, B)`` with reached waypoints advanced.
 
     Written on ``(M, B)`` components ``cols`` = ``x, y, vx, vy, r`` (the batch the contiguous
     inner dimension) with short Python loops over the waypoints and the other movers:
     compiled, this fuses into vectorised passes, about 2.5x faster than the same maths on
     ``(B, M, M + 1, 2)`` pair tensors, whose inner dimension of a few movers does not vectorise."""
-    kind, speed, target, n = (plan[..., k].t() for k in range(4))
+    kind, speed, n = plan[..., 0].t(), plan[..., 1].t(), plan[..., 3].t()
     x, y, vx, vy, r = cols
-    mask = mask.t()
     gx, gy = torch.zeros_like(x), torch.zeros_like(y)
     for k in range((plan.shape[-1] - 4) // 2):  # the next waypoint
         here = target == k
@@ -214,26 +221,26 @@ def _steer(cols: tuple[Tensor, ...], plan: Tensor, mask: Tensor, dt: float, robo
     patrol = kind == PATROL
     nvx, nvy = torch.where(patrol, pvx, vx), torch.where(patrol, pvy, vy)
     # Pedestrians: relax towards the desired velocity, pushed by the other movers and the robot.
+    # Mover i meets mover (i - s) mod M for s = 1 .. M - 1 (the rows rolled: an index, not a copy), so no
+    # pair of a mover with itself is computed and masked off.
     rr = robot_radius[None, :].to(x.dtype) if isinstance(robot_radius, Tensor) else robot_radius
-    others = [(x[j : j + 1], y[j : j + 1], r[j : j + 1], mask[j : j + 1], j) for j in range(x.shape[0])]
-    others.append((robot_xy[None, :, 0], robot_xy[None, :, 1], rr, None, -1))
+    mask = mask.t()
+    others = [(x.roll(s, 0), y.roll(s, 0), r.roll(s, 0), mask.roll(s, 0)) for s in range(1, x.shape[0])]
+    others.append((robot_xy[None, :, 0], robot_xy[None, :, 1], rr, None))
     fx, fy = torch.zeros_like(x), torch.zeros_like(y)
-    slot = torch.arange(x.shape[0], device=x.device)[:, None]
-    for ox, oy, orad, present, j in others:
+    for ox, oy, orad, present in others:
         ax, ay = x - ox, y - oy
         d = safe_hypot(ax, ay)
-        push = PED_PUSH * torch.exp((r + orad - d) / PED_RANGE) / d.clamp(min=1e-9)
-        if present is not None:  # not oneself, and only movers that exist
-            push = torch.where((slot != j) & present, push, 0.0)
+        push = PED_PUSH * torch.exp((r + orad - d) * (1 / PED_RANGE)) / d.clamp(min=1e-9)
+        if present is not None:  # only movers that exist
+            push = torch.where(present, push, 0.0)
         fx, fy = fx + push * ax, fy + push * ay
     qx = vx + ((dvx - vx) / PED_TAU + fx) * dt
     qy = vy + ((dvy - vy) / PED_TAU + fy) * dt
     cap = torch.minimum(torch.ones_like(speed), PED_MAX_SPEED * speed / safe_hypot(qx, qy).clamp(min=1e-9))
     nvx, nvy = torch.where(ped, qx * cap, nvx), torch.where(ped, qy * cap, nvy)
-    target = torch.where(arrived, torch.remainder(target + 1, n.clamp(min=1)), target)
-    fields = [plan[..., k].t() for k in range(plan.shape[-1])]
-    fields[2] = target
-    return (nvx, nvy), torch.stack(fields).permute(2, 1, 0)
+    after = target + 1  # the following waypoint, cyclically (a select, not a float remainder: target < n)
+    return (nvx, nvy), torch.where(arrived, torch.where(after >= n, 0.0, after), target)
 
 
 def _bounce(p: Tensor, v: Tensor, lo: Tensor, hi: Tensor) -> tuple[Tensor, Tensor]:

@@ -46,6 +46,7 @@ class SimState:
     movers: Tensor  # (B, M, 9) moving obstacles (movers.py); M may be 0
     mover_mask: Tensor  # (B, M) bool, which mover slots exist
     mover_plan: Tensor  # (B, M, 4 + 2P) patrol and pedestrian waypoints; (B, M, 0) if all are ballistic
+    mover_target: Tensor  # (B, M) index of the waypoint each patrol and pedestrian heads for now; (B, 0) if all are ballistic
     mover_boxes: Tensor  # (B, K, 3) [half_x, half_y, yaw] of the last K movers, which are boxes; K = 0: all discs
     cmd_queue: Tensor  # (B, K, 2) the last K commands, newest first, for actuator delay (randomize.py)
 

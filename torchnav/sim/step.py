@@ -81,14 +81,15 @@ def step(
     if params.imu is not None:
         imu, imu_bias = step_imu(imu, imu_bias, vel, state.vel, state.time, params.imu, params.dt, generator)
     radius = params.robot_radius if env_params is None else env_params.robot_radius
-    rows, plan = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius)
-    movers = Movers(rows, state.mover_mask, plan, state.mover_boxes)
-    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, queue, world, params, generator, unroll, env_params)
+    rows, target = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius, state.mover_target)
+    movers = Movers(rows, state.mover_mask, state.mover_plan, state.mover_boxes)  # the plan is carried unchanged
+    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, target, queue, world, params, generator, unroll, env_params)
 
 
-def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, params, generator=None, unroll=None,
+def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, target, queue, world, params, generator=None, unroll=None,
            env: EnvParams | None = None) -> SimState:
-    """The state at ``pose`` with its collision, lidar and camera readings (movers included)."""
+    """The state at ``pose`` with its collision, lidar and camera readings (movers included; ``target``
+    the waypoint index each patrol and pedestrian heads for)."""
     mw = mover_world(movers.rows, movers.mask, movers.boxes) if movers.rows.shape[1] else None
     radius = params.robot_radius if env is None else env.robot_radius
     clearance = disc_clearance(pose, world, radius)
@@ -109,7 +110,7 @@ def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, queue, world, p
     return SimState(
         pose=pose, vel=vel, odom=odom, ranges=ranges, clearance=clearance, collided=clearance <= 0, time=time,
         imu=imu, imu_bias=imu_bias, cam_depth=depth, movers=movers.rows, mover_mask=movers.mask, mover_plan=movers.plan,
-        mover_boxes=movers.boxes,
+        mover_boxes=movers.boxes, mover_target=target,
         cmd_queue=queue, batch_size=[pose.shape[0]], device=pose.device,
     )
 
@@ -163,15 +164,16 @@ def init_state(
     if rows.dtype != pose.dtype or rows.device != pose.device or boxes.dtype != pose.dtype or boxes.device != pose.device:
         raise ValueError(f"movers must have the pose's dtype and device, got {rows.dtype} on {rows.device} (boxes {boxes.dtype} on {boxes.device})")
     if plan.numel() == 0:  # canonical strides for an empty plan (an expanded one would make torch.compile recompile)
-        plan = rows.new_zeros(plan.shape)
-    else:
+        plan, target = rows.new_zeros(plan.shape), rows.new_zeros(b, 0)
+    else:  # the first waypoint to head for, stored (M, B) like the target the step returns (not a view of the plan)
         plan = mover_major(plan.to(rows.dtype))
+        target = plan[..., 2].t().clone().t()
     if rows.shape[1]:  # the layout step_movers returns: the first step reads the same strides as the next ones
         rows = mover_major(rows)
     boxes = mover_major(boxes) if boxes.shape[1] else rows.new_zeros(boxes.shape)  # carried unchanged by every step
     n_imu = 0 if params.imu is None else 3
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
-        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype), boxes),
+        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype), boxes), target,
         pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
     )
