@@ -174,6 +174,6 @@ def init_state(
     n_imu = 0 if params.imu is None else 3
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
-        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan.to(rows.dtype), boxes), target,
+        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan, boxes), target,
         pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
     )
