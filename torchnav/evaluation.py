@@ -69,11 +69,15 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
 
     ``randomize_off`` switches domain randomisation off: True for every parameter, or the
     names of those to fix (``cfg.randomize``'s keys), which then take ``robot``/``lidar``'s values.
+
+    The ``progress`` term is measured in straight lines (``reward.progress_distance: euclidean``):
+    evaluation counts outcomes, the geodesic one needs generated worlds and costs a second
+    wavefront per episode, and neither changes the episodes.
     """
     if map is not None and worlds is not None:
         raise ValueError("eval_config: give a map or procedural worlds, not both")
     d = to_dict(cfg)
-    over: dict[str, Any] = {}
+    over: dict[str, Any] = {"reward": {"progress_distance": "euclidean"}}
     if map is not None:
         over["map"] = map
         d["worlds"] = {**d["worlds"], "families": {}, "movers": {}}  # the map's own moving_circles apply

@@ -110,12 +110,16 @@ class CurriculumConfig:
     success_smoothing: float = 0.01  # weight of each finished episode in the success-rate average
 
 
+PROGRESS_DISTANCES = ("euclidean", "geodesic")
+
+
 @dataclass(frozen=True)
 class RewardConfig:
     preset: str = "classic"  # "classic" | "progress" | "shaped"; see docs/tasks.md
     weights: dict[str, float] = field(default_factory=dict)  # per-term weight overrides
     proximity_distance: float = 1.0  # m, obstacles nearer than this are penalised
     spin_threshold: float = 0.5  # rad/s, turn rates above this are penalised ("progress")
+    progress_distance: str = "euclidean"  # "euclidean" | "geodesic" (shortest safe path; needs worlds.families): what `progress` rewards the decrease of
 
 
 @dataclass(frozen=True)
@@ -228,6 +232,10 @@ class NavConfig(TaskConfig):
             (0 < w.success_smoothing <= 1, "worlds.success_smoothing must be in (0, 1]"),
             (0 <= w.anywhere_goals <= 1, f"worlds.anywhere_goals must be in [0, 1], got {w.anywhere_goals}"),
             (0 <= w.below_level <= 1, f"worlds.below_level must be in [0, 1], got {w.below_level}"),
+            (self.reward.progress_distance in PROGRESS_DISTANCES,
+             f"reward.progress_distance must be one of {', '.join(PROGRESS_DISTANCES)}, got {self.reward.progress_distance!r}"),
+            (self.reward.progress_distance != "geodesic" or bool(w.families),
+             "reward.progress_distance: geodesic needs worlds.families (the distances come from each generated world's wavefront)"),
             (all(v >= 0 for v in w.families.values()) and (not w.families or sum(w.families.values()) > 0),
              f"worlds.families weights must be >= 0 with a positive sum, got {w.families}"),
         ]

@@ -18,6 +18,7 @@ from ..maps.free_space import check_room
 from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
 from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
+from ..worlds.guide import GUIDE_CELLS, goal_distance
 from ..sim import step as sim_step
 from ..deprecation import renamed_attribute, renamed_keywords
 from .base import BatchedTask, TaskState
@@ -48,6 +49,8 @@ class NavTask(BatchedTask):
         movers = self.world_movers if self.families else self.spec.movers
         self.n_movers = movers.count if movers else 0
         self.weights = resolve_weights(cfg.reward)
+        # reward.progress_distance: geodesic keeps each episode's grid of path distances to its goal.
+        self.guide_cells = GUIDE_CELLS if cfg.reward.progress_distance == "geodesic" else 0
         self.term_names = tuple(self.weights)
         self.n_sectors = cfg.lidar.n_sectors
         self.n_imu = 3 if cfg.observation.imu else 0
@@ -128,8 +131,12 @@ class NavTask(BatchedTask):
         """New episodes for envs ``idx`` ``(n,)``."""
         c, rc = self.cfg, self.cfg.reset
         n = idx.shape[0]
+        goal_field = torch.zeros(n, self.guide_cells, self.guide_cells, dtype=torch.int16, device=self.device)
+        goal_frame = torch.zeros(n, 3, dtype=self.dtype, device=self.device)
         if self.families:
-            world, start, goal, family, difficulty, bounds = self._generated(n, cur, generator)
+            world, start, goal, family, difficulty, bounds, guide = self._generated(n, cur, generator)
+            if guide is not None:
+                goal_field, goal_frame = guide
         else:
             world = self.base_world[idx]
             start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator)
@@ -155,18 +162,32 @@ class NavTask(BatchedTask):
         obs = self.observe(sim, goal)
         dist, _ = self.goal_vector(sim.pose, goal)
         return NavState(
-            world=world, goal=goal, start=start, goal_dist=dist, ep_path=torch.zeros(n, dtype=self.dtype, device=self.device),
+            world=world, goal=goal, start=start, goal_dist=dist, goal_field=goal_field, goal_frame=goal_frame,
+            goal_path=self._progress_distance(goal_field, goal_frame, goal, sim.pose, dist, dist),
+            ep_path=torch.zeros(n, dtype=self.dtype, device=self.device),
             straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params, **self._episode_start(sim, obs),
         )
 
-    def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor]:
+    def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
         """``n`` procedural episodes: padded worlds, starts ``(n, 3)``, goals ``(n, 2)``, family
-        indices ``(n,)``, difficulties ``(n,)`` and bounds ``(n, 4)``, each family at its curriculum difficulty."""
+        indices ``(n,)``, difficulties ``(n,)``, bounds ``(n, 4)`` and, with the geodesic progress
+        reward, each goal's distance grid and its frame; each family at its curriculum difficulty."""
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
         batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, generator, self.device, self.dtype, robot_radius=self.cfg.robot.radius,
-                           anywhere_goals=self.cfg.worlds.anywhere_goals, below_level=self.cfg.worlds.below_level)
+                           anywhere_goals=self.cfg.worlds.anywhere_goals, below_level=self.cfg.worlds.below_level, guide_cells=self.guide_cells)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
-        return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty, batch.bounds
+        guide = None if batch.goal_field is None else (batch.goal_field, batch.goal_frame.to(self.dtype))
+        return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty, batch.bounds, guide
+
+    def _progress_distance(self, field: Tensor, frame: Tensor, goal: Tensor, pose: Tensor, dist: Tensor, last: Tensor) -> Tensor:
+        """The distance ``(B,)`` m whose decrease the ``progress`` term rewards: the straight ``dist``,
+        or with ``reward.progress_distance: geodesic`` the path distance read from the episode's grid,
+        ``last`` (the previous step's) where the grid has none, so the rewards still sum to the
+        start's distance minus the last known one."""
+        if not self.guide_cells:
+            return dist
+        path = goal_distance(field, frame, goal, pose[:, :2])
+        return torch.where(path.isfinite(), path, last)
 
     @renamed_keywords(gen="generator")
     def initial_state(self, cur: CurriculumState, generator: torch.Generator) -> tuple[NavState, CurriculumState]:
@@ -217,15 +238,17 @@ class NavTask(BatchedTask):
         dist, bearing = self.goal_vector(sim.pose, state.goal)
         collision = sim.collided
         success = (dist < self.cfg.goal_tolerance) & ~collision
+        goal_path = self._progress_distance(state.goal_field, state.goal_frame, state.goal, sim.pose, dist, state.goal_path)
         terms = reward_terms(
             self.weights, self.cfg.reward, success=success, collision=collision, vel=sim.vel,
-            d_min=sim.ranges.amin(-1), progress=state.goal_dist - dist, bearing=bearing,
+            d_min=sim.ranges.amin(-1), progress=state.goal_path - goal_path, bearing=bearing,
         )
         common, reward = self._episode_step(state, sim, self.observe(sim, state.goal), terms)
         terminated = success | collision
         truncated = (common["steps"] >= self.cfg.max_steps) & ~terminated
         new = NavState(
-            world=state.world, goal=state.goal, start=state.start, goal_dist=dist,
+            world=state.world, goal=state.goal, start=state.start, goal_dist=dist, goal_field=state.goal_field, goal_frame=state.goal_frame,
+            goal_path=goal_path,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
             straight=state.straight, family=state.family, difficulty=state.difficulty, env_params=state.env_params, **common,
         )
@@ -246,6 +269,9 @@ class NavState(TaskState):
     goal: Tensor  # (B, 2) m
     start: Tensor  # (B, 3) start pose
     goal_dist: Tensor  # (B,) m to the goal after the last step
+    goal_field: Tensor  # (B, G, G) int16 cm path distances to the goal (G = 64 with reward.progress_distance: geodesic, else 0); worlds/guide.py
+    goal_frame: Tensor  # (B, 3) [x0, y0, cell m] of goal_field
+    goal_path: Tensor  # (B,) m, the distance the progress term measures after the last step (goal_dist unless geodesic)
     ep_path: Tensor  # (B,) m driven this episode
     straight: Tensor  # (B,) m start-goal distance
     family: Tensor  # (B,) int64 index of the episode's world family in cfg.worlds.families (0 without)

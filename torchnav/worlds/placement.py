@@ -16,6 +16,7 @@ from torch import Tensor
 from ..sim import World
 from .layout import lerp, uniform
 from .raster import clearance_grid
+from .guide import GUIDE_CELLS, coarse_goal_field
 from .wavefront import ORTHO, UNREACHED, geodesic_distance
 
 GOAL_BAND_EASY = (0.1, 0.4)  # goal path length as a fraction of the farthest reachable one, at difficulty 0
@@ -31,14 +32,14 @@ def goal_band(difficulty: Tensor) -> tuple[Tensor, Tensor]:
     return lerp(GOAL_BAND_EASY[0], GOAL_BAND_HARD[0], difficulty), lerp(GOAL_BAND_EASY[1], GOAL_BAND_HARD[1], difficulty)
 
 
-def free_cells(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor]:
-    """Cells ``(B, H, W)`` whose centre is safe for the robot (see the module notes), and the
-    centres ``(H, W, 2)`` m of the batch's shared grid, which covers every env's bounds ``(B, 4)``."""
+def _clearance(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor]:
+    """Each cell's clearance ``(B, H, W)`` m to the obstacles and the bounds' edge, exact up to the
+    safe clearance of :func:`free_cells` and at least it beyond, and the centres ``(H, W, 2)`` m of
+    the batch's shared grid, which covers every env's bounds ``(B, 4)``."""
     lo = bounds[:, :2].amin(0).tolist()
     hi = bounds[:, 2:].amax(0).tolist()
     shape = (math.ceil((hi[1] - lo[1]) / resolution), math.ceil((hi[0] - lo[0]) / resolution))
-    need = robot_radius + resolution / math.sqrt(2.0) + 1e-4  # 1e-4 m: float32 round-off
-    clear = clearance_grid(world, (lo[0], lo[1]), shape, resolution, reach=need)
+    clear = clearance_grid(world, (lo[0], lo[1]), shape, resolution, reach=_safe(robot_radius, resolution))
     like = bounds
     xs = lo[0] + (torch.arange(shape[1], dtype=like.dtype, device=like.device) + 0.5) * resolution
     ys = lo[1] + (torch.arange(shape[0], dtype=like.dtype, device=like.device) + 0.5) * resolution
@@ -48,7 +49,19 @@ def free_cells(world: World, bounds: Tensor, robot_radius: float, resolution: fl
         torch.minimum(centres[..., 0] - b[..., 0], b[..., 2] - centres[..., 0]),
         torch.minimum(centres[..., 1] - b[..., 1], b[..., 3] - centres[..., 1]),
     )
-    return (clear > need) & (edge > need), centres
+    return torch.minimum(clear, edge), centres
+
+
+def _safe(robot_radius: float, resolution: float) -> float:
+    """The clearance (m) of a cell centre from which every point of the cell is clear of the disc."""
+    return robot_radius + resolution / math.sqrt(2.0) + 1e-4  # 1e-4 m: float32 round-off
+
+
+def free_cells(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor]:
+    """Cells ``(B, H, W)`` whose centre is safe for the robot (see the module notes), and the
+    centres ``(H, W, 2)`` m of the batch's shared grid, which covers every env's bounds ``(B, 4)``."""
+    clear, centres = _clearance(world, bounds, robot_radius, resolution)
+    return clear > _safe(robot_radius, resolution), centres
 
 
 def _random_cell(candidates: Tensor, generator: torch.Generator) -> Tensor:
@@ -94,10 +107,11 @@ def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywh
 
 def _place(
     world: World, bounds: Tensor, difficulty: Tensor, anywhere: Tensor, generator: torch.Generator, robot_radius: float, resolution: float,
-    min_goal_distance: float,
-) -> tuple[Tensor, Tensor, Tensor]:
+    min_goal_distance: float, guide_cells: int,
+) -> tuple[Tensor, ...]:
     """:func:`place_episodes` for one chunk of envs."""
-    free, centres = free_cells(world, bounds, robot_radius, resolution)
+    clear, centres = _clearance(world, bounds, robot_radius, resolution)
+    free = clear > _safe(robot_radius, resolution)
     empty = ~free.flatten(1).any(1)
     if empty.any():
         raise ValueError(f"no free space for a robot of radius {robot_radius} m at resolution {resolution} m in {int(empty.sum())} env(s)")
@@ -107,7 +121,33 @@ def _place(
     jitter = uniform(-0.5 * resolution, 0.5 * resolution, (2, n, 2), generator, like)
     heading = uniform(-math.pi, math.pi, (n, 1), generator, like)
     length = cells.to(like.dtype) * resolution + jitter.norm(dim=-1).sum(0)
-    return torch.cat((flat[start_cell] + jitter[0], heading), -1), flat[goal_cell] + jitter[1], length
+    out = (torch.cat((flat[start_cell] + jitter[0], heading), -1), flat[goal_cell] + jitter[1], length)
+    if not guide_cells:
+        return out
+    origin = (float(centres[0, 0, 0]) - resolution / 2, float(centres[0, 0, 1]) - resolution / 2)
+    return out + coarse_goal_field(geodesic_distance(clear > robot_radius, goal_cell), origin, resolution, bounds, guide_cells)
+
+
+def goal_distance_grid(
+    world: World, bounds: Tensor, goal: Tensor, robot_radius: float = 0.2, resolution: float = 0.1, cells: int = GUIDE_CELLS,
+) -> tuple[Tensor, Tensor]:
+    """Each env's grid of geodesic distances to its ``goal`` ``(B, 2)`` m and the grid's frame
+    (:func:`~.guide.coarse_goal_field`; read a position's distance with :func:`~.guide.goal_distance`),
+    from a wavefront run from the goal's cell over the cells whose centre a disc of ``robot_radius``
+    m may stand on (clearance above the radius). Raises ValueError where a goal's cell is not one."""
+    clear, centres = _clearance(world, bounds, robot_radius, resolution)
+    free = clear > robot_radius
+    origin = (float(centres[0, 0, 0]) - resolution / 2, float(centres[0, 0, 1]) - resolution / 2)
+    h, w = free.shape[1:]
+    col = ((goal[:, 0] - origin[0]) / resolution).floor().long()
+    row = ((goal[:, 1] - origin[1]) / resolution).floor().long()
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    cell = row.clamp(0, h - 1) * w + col.clamp(0, w - 1)
+    safe = inside & free.reshape(free.shape[0], -1).gather(1, cell[:, None])[:, 0]
+    if not safe.all():
+        raise ValueError(f"goal_distance_grid: the goal of env(s) {(~safe).nonzero()[:, 0].tolist()} is not on a cell where a "
+                         f"{robot_radius} m disc fits, at {resolution} m resolution")
+    return coarse_goal_field(geodesic_distance(free, cell), origin, resolution, bounds, cells)
 
 
 def place_episodes(
@@ -119,8 +159,11 @@ def place_episodes(
     resolution: float = 0.1,
     min_goal_distance: float = 1.0,
     anywhere: Tensor | None = None,
-) -> tuple[Tensor, Tensor, Tensor]:
-    """Start poses ``(B, 3)``, goals ``(B, 2)`` and path lengths ``(B,)`` (m) in ``world``.
+    guide_cells: int = 0,
+) -> tuple[Tensor, ...]:
+    """Start poses ``(B, 3)``, goals ``(B, 2)`` and path lengths ``(B,)`` (m) in ``world``; with
+    ``guide_cells > 0`` also each env's grid of geodesic distances to its goal and the grid's frame
+    (:func:`~.guide.coarse_goal_field`, from a second wavefront, run from the goal).
 
     ``bounds`` ``(B, 4)`` ``[xmin, ymin, xmax, ymax]`` m per env; ``difficulty`` ``(B,)`` in
     [0, 1] sets the goal band (:func:`goal_band`); goals are at least
@@ -146,7 +189,8 @@ def place_episodes(
         while j < len(sizes) and (j + 1 - i) * sizes[j] <= _CELLS_PER_CHUNK:
             j += 1
         idx = order[i:j]
-        parts.append(_place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], generator, robot_radius, resolution, min_goal_distance))
+        parts.append(_place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], generator, robot_radius, resolution, min_goal_distance,
+                            guide_cells))
         i = j
     inverse = torch.argsort(order)
     return tuple(torch.cat(t)[inverse] for t in zip(*parts))
