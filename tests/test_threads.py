@@ -34,6 +34,10 @@ def test_auto_gives_a_core_to_a_busy_process_and_takes_it_back():
         g = C.ThreadGovernor("auto", interval=0.5)
         if not g.auto or g.cores < 2:
             pytest.skip("needs 2 or more cores counted alike by /proc/stat and the affinity mask")
+        mark = g._sample()
+        time.sleep(1.0)
+        if g.others(mark, g._sample()) > 0.3:  # the governor would rightly keep a core free for that work
+            pytest.skip("other processes already keep a core busy: the test needs a machine this test has to itself")
         others = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(g.cores - 1)]
         try:
             time.sleep(1.5)  # let them start
