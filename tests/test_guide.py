@@ -45,6 +45,20 @@ def test_distance_goes_round_a_wall_and_never_through_it():
     assert math.isinf(float(goal_distance(field, frame, goal, torch.tensor([[0.0, -2.0]]))[0]))
 
 
+def test_margin_closes_gaps_the_robot_would_only_scrape_through():
+    """A wall along x = 0 with a 0.6 m gap at y = 0: a 0.4 m robot passes it; with a 0.15 m margin
+    (0.7 m needed) no path is left and the distance is unknown."""
+    half = torch.tensor([5.0])
+    walls = torch.tensor([[[0.0, -5.0, 0.0, -0.3], [0.0, 0.3, 0.0, 5.0]]])
+    world, bounds = walled_world(half, half, segments=(walls, torch.ones(1, 2, dtype=torch.bool)))
+    goal, robot = torch.tensor([[2.0, 0.0]]), torch.tensor([[-2.0, 0.0]])
+    d = float(goal_distance(*goal_distance_grid(world, bounds, goal), goal, robot)[0])
+    assert 4.0 - 0.05 < d < 4.0 * 1.09
+    assert math.isinf(float(goal_distance(*goal_distance_grid(world, bounds, goal, margin=0.15), goal, robot)[0]))
+    with pytest.raises(ValueError, match="guide_margin must be >= 0"):
+        make_worlds("open", 1, 0.5, torch.Generator().manual_seed(0), guide_cells=8, guide_margin=-0.1)
+
+
 def test_goal_distance_grid_refuses_an_unsafe_goal():
     world, bounds = wall_world()
     with pytest.raises(ValueError, match="not on a cell where"):
@@ -78,13 +92,14 @@ def test_open_world_distance_is_the_straight_line():
         assert torch.all(d >= line - 0.05) and torch.all(d <= line * 1.09 + 0.1)
 
 
-def geodesic_cfg(progress_distance: str = "geodesic") -> NavConfig:
+def geodesic_cfg(progress_distance: str = "geodesic", margin: float = 0.0) -> NavConfig:
     return NavConfig.from_dict({"worlds": {"families": {"corridors": 1.0, "rooms": 1.0}, "difficulty": 0.5}, "max_steps": 400,
-                                "reward": {"preset": "progress", "progress_distance": progress_distance}})
+                                "reward": {"preset": "progress", "progress_distance": progress_distance, "geodesic_margin": margin}})
 
 
-def test_progress_rewards_sum_to_the_decrease_of_the_path_distance():
-    env = NavEnv(geodesic_cfg(), num_envs=8, seed=1)
+@pytest.mark.parametrize("margin", [0.0, 0.1])
+def test_progress_rewards_sum_to_the_decrease_of_the_path_distance(margin):
+    env = NavEnv(geodesic_cfg(margin=margin), num_envs=8, seed=1)
     env.reset()
     task, state = env.task, env.state
     first = state.goal_path.clone()
@@ -113,6 +128,8 @@ def test_progress_distance_config_errors_and_evaluation():
         NavConfig.from_dict({"reward": {"progress_distance": "manhattan"}})
     with pytest.raises(ConfigError, match="geodesic needs worlds.families"):
         NavConfig.from_dict({"reward": {"progress_distance": "geodesic"}})
+    with pytest.raises(ConfigError, match="geodesic_margin must be >= 0"):
+        NavConfig.from_dict({"reward": {"geodesic_margin": -0.1}})
     cfg = geodesic_cfg()
     assert eval_config(cfg).reward.progress_distance == "euclidean"
     assert eval_config(cfg, map="arena").map == "arena"  # a map has no wavefront: evaluation there works too

@@ -120,6 +120,7 @@ class RewardConfig:
     proximity_distance: float = 1.0  # m, obstacles nearer than this are penalised
     spin_threshold: float = 0.5  # rad/s, turn rates above this are penalised ("progress")
     progress_distance: str = "euclidean"  # "euclidean" | "geodesic" (shortest safe path; needs worlds.families): what `progress` rewards the decrease of
+    geodesic_margin: float = 0.0  # m, geodesic paths keep this much more than the robot's radius from obstacles
 
 
 @dataclass(frozen=True)
@@ -234,6 +235,7 @@ class NavConfig(TaskConfig):
             (0 <= w.below_level <= 1, f"worlds.below_level must be in [0, 1], got {w.below_level}"),
             (self.reward.progress_distance in PROGRESS_DISTANCES,
              f"reward.progress_distance must be one of {', '.join(PROGRESS_DISTANCES)}, got {self.reward.progress_distance!r}"),
+            (self.reward.geodesic_margin >= 0, f"reward.geodesic_margin must be >= 0 m, got {self.reward.geodesic_margin}"),
             (self.reward.progress_distance != "geodesic" or bool(w.families),
              "reward.progress_distance: geodesic needs worlds.families (the distances come from each generated world's wavefront)"),
             (all(v >= 0 for v in w.families.values()) and (not w.families or sum(w.families.values()) > 0),

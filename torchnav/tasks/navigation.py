@@ -163,7 +163,7 @@ class NavTask(BatchedTask):
         dist, _ = self.goal_vector(sim.pose, goal)
         return NavState(
             world=world, goal=goal, start=start, goal_dist=dist, goal_field=goal_field, goal_frame=goal_frame,
-            goal_path=self._progress_distance(goal_field, goal_frame, goal, sim.pose, dist, dist),
+            goal_path=self._progress_distance(goal_field, goal_frame, goal, sim.pose, dist, torch.full_like(dist, math.inf)),
             ep_path=torch.zeros(n, dtype=self.dtype, device=self.device),
             straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params, **self._episode_start(sim, obs),
         )
@@ -174,7 +174,8 @@ class NavTask(BatchedTask):
         reward, each goal's distance grid and its frame; each family at its curriculum difficulty."""
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
         batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, generator, self.device, self.dtype, robot_radius=self.cfg.robot.radius,
-                           anywhere_goals=self.cfg.worlds.anywhere_goals, below_level=self.cfg.worlds.below_level, guide_cells=self.guide_cells)
+                           anywhere_goals=self.cfg.worlds.anywhere_goals, below_level=self.cfg.worlds.below_level, guide_cells=self.guide_cells,
+                           guide_margin=self.cfg.reward.geodesic_margin)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
         guide = None if batch.goal_field is None else (batch.goal_field, batch.goal_frame.to(self.dtype))
         return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty, batch.bounds, guide
@@ -182,8 +183,7 @@ class NavTask(BatchedTask):
     def _progress_distance(self, field: Tensor, frame: Tensor, goal: Tensor, pose: Tensor, dist: Tensor, last: Tensor) -> Tensor:
         """The distance ``(B,)`` m whose decrease the ``progress`` term rewards: the straight ``dist``,
         or with ``reward.progress_distance: geodesic`` the path distance read from the episode's grid,
-        ``last`` (the previous step's) where the grid has none, so the rewards still sum to the
-        start's distance minus the last known one."""
+        ``last`` (the previous step's; ``inf`` until one is known) where the grid has none."""
         if not self.guide_cells:
             return dist
         path = goal_distance(field, frame, goal, pose[:, :2])
@@ -239,9 +239,11 @@ class NavTask(BatchedTask):
         collision = sim.collided
         success = (dist < self.cfg.goal_tolerance) & ~collision
         goal_path = self._progress_distance(state.goal_field, state.goal_frame, state.goal, sim.pose, dist, state.goal_path)
+        # Both known (finite): the decrease; else 0, so the terms sum to the first known distance minus the last.
+        progress = torch.where(state.goal_path.isfinite() & goal_path.isfinite(), state.goal_path - goal_path.where(goal_path.isfinite(), 0.0), 0.0)
         terms = reward_terms(
             self.weights, self.cfg.reward, success=success, collision=collision, vel=sim.vel,
-            d_min=sim.ranges.amin(-1), progress=state.goal_path - goal_path, bearing=bearing,
+            d_min=sim.ranges.amin(-1), progress=progress, bearing=bearing,
         )
         common, reward = self._episode_step(state, sim, self.observe(sim, state.goal), terms)
         terminated = success | collision
@@ -271,7 +273,7 @@ class NavState(TaskState):
     goal_dist: Tensor  # (B,) m to the goal after the last step
     goal_field: Tensor  # (B, G, G) int16 cm path distances to the goal (G = 64 with reward.progress_distance: geodesic, else 0); worlds/guide.py
     goal_frame: Tensor  # (B, 3) [x0, y0, cell m] of goal_field
-    goal_path: Tensor  # (B,) m, the distance the progress term measures after the last step (goal_dist unless geodesic)
+    goal_path: Tensor  # (B,) m, the distance the progress term measures after the last step (goal_dist unless geodesic; inf until known)
     ep_path: Tensor  # (B,) m driven this episode
     straight: Tensor  # (B,) m start-goal distance
     family: Tensor  # (B,) int64 index of the episode's world family in cfg.worlds.families (0 without)

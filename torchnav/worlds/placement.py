@@ -107,7 +107,7 @@ def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywh
 
 def _place(
     world: World, bounds: Tensor, difficulty: Tensor, anywhere: Tensor, generator: torch.Generator, robot_radius: float, resolution: float,
-    min_goal_distance: float, guide_cells: int,
+    min_goal_distance: float, guide_cells: int, guide_margin: float,
 ) -> tuple[Tensor, ...]:
     """:func:`place_episodes` for one chunk of envs."""
     clear, centres = _clearance(world, bounds, robot_radius, resolution)
@@ -125,16 +125,26 @@ def _place(
     if not guide_cells:
         return out
     origin = (float(centres[0, 0, 0]) - resolution / 2, float(centres[0, 0, 1]) - resolution / 2)
-    return out + coarse_goal_field(geodesic_distance(clear > robot_radius, goal_cell), origin, resolution, bounds, guide_cells)
+    return out + coarse_goal_field(_goal_wavefront(clear, goal_cell, robot_radius + guide_margin), origin, resolution, bounds, guide_cells)
+
+
+def _goal_wavefront(clear: Tensor, goal_cell: Tensor, need: float) -> Tensor:
+    """The wavefront from ``goal_cell`` ``(B,)`` over the cells whose clearance ``clear`` ``(B, H, W)``
+    is above ``need`` m, and the goal's own cell whatever its clearance."""
+    passable = (clear > need).reshape(clear.shape[0], -1).scatter(1, goal_cell[:, None], True).reshape(clear.shape)
+    return geodesic_distance(passable, goal_cell)
 
 
 def goal_distance_grid(
     world: World, bounds: Tensor, goal: Tensor, robot_radius: float = 0.2, resolution: float = 0.1, cells: int = GUIDE_CELLS,
+    margin: float = 0.0,
 ) -> tuple[Tensor, Tensor]:
     """Each env's grid of geodesic distances to its ``goal`` ``(B, 2)`` m and the grid's frame
     (:func:`~.guide.coarse_goal_field`; read a position's distance with :func:`~.guide.goal_distance`),
     from a wavefront run from the goal's cell over the cells whose centre a disc of ``robot_radius``
-    m may stand on (clearance above the radius). Raises ValueError where a goal's cell is not one."""
+    m may stand on (clearance above the radius), or with ``margin`` m more to spare (paths keep
+    that far from obstacles, and gaps narrower than ``2 * (robot_radius + margin)`` close).
+    Raises ValueError where a goal's cell is not one where the disc fits."""
     clear, centres = _clearance(world, bounds, robot_radius, resolution)
     free = clear > robot_radius
     origin = (float(centres[0, 0, 0]) - resolution / 2, float(centres[0, 0, 1]) - resolution / 2)
@@ -147,7 +157,7 @@ def goal_distance_grid(
     if not safe.all():
         raise ValueError(f"goal_distance_grid: the goal of env(s) {(~safe).nonzero()[:, 0].tolist()} is not on a cell where a "
                          f"{robot_radius} m disc fits, at {resolution} m resolution")
-    return coarse_goal_field(geodesic_distance(free, cell), origin, resolution, bounds, cells)
+    return coarse_goal_field(_goal_wavefront(clear, cell, robot_radius + margin), origin, resolution, bounds, cells)
 
 
 def place_episodes(
@@ -160,10 +170,12 @@ def place_episodes(
     min_goal_distance: float = 1.0,
     anywhere: Tensor | None = None,
     guide_cells: int = 0,
+    guide_margin: float = 0.0,
 ) -> tuple[Tensor, ...]:
     """Start poses ``(B, 3)``, goals ``(B, 2)`` and path lengths ``(B,)`` (m) in ``world``; with
     ``guide_cells > 0`` also each env's grid of geodesic distances to its goal and the grid's frame
-    (:func:`~.guide.coarse_goal_field`, from a second wavefront, run from the goal).
+    (:func:`~.guide.coarse_goal_field`, from a second wavefront, run from the goal; ``guide_margin``
+    as ``margin`` of :func:`goal_distance_grid`).
 
     ``bounds`` ``(B, 4)`` ``[xmin, ymin, xmax, ymax]`` m per env; ``difficulty`` ``(B,)`` in
     [0, 1] sets the goal band (:func:`goal_band`); goals are at least
@@ -190,7 +202,7 @@ def place_episodes(
             j += 1
         idx = order[i:j]
         parts.append(_place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], generator, robot_radius, resolution, min_goal_distance,
-                            guide_cells))
+                            guide_cells, guide_margin))
         i = j
     inverse = torch.argsort(order)
     return tuple(torch.cat(t)[inverse] for t in zip(*parts))

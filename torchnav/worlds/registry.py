@@ -69,6 +69,7 @@ def make_worlds(
     anywhere_goals: float = 0.0,
     below_level: float = 0.0,
     guide_cells: int = 0,
+    guide_margin: float = 0.0,
 ) -> WorldBatch:
     """``num_envs`` worlds of one family (a name of :data:`FAMILIES` or ``"map:<name>"``), each with a
     start and a reachable goal; the arguments up to ``anywhere_goals``: docs/worlds.md, "Generating
@@ -76,7 +77,8 @@ def make_worlds(
     versions. ``below_level``: the fraction of envs (drawn per env) whose difficulty is drawn
     uniformly in ``[0, d)`` (a curriculum keeps easier worlds in training as it rises); the batch's
     ``difficulty`` holds each env's own. ``guide_cells > 0``: also each env's grid of geodesic
-    distances to its goal, ``guide_cells`` a side (``goal_field``, ``goal_frame``; torchnav/worlds/guide.py).
+    distances to its goal, ``guide_cells`` a side (``goal_field``, ``goal_frame``; torchnav/worlds/guide.py),
+    for paths that keep ``guide_margin`` m more than the robot's radius from obstacles.
     Worlds of one family share their slot counts.
     """
     for name, share in (("anywhere_goals", anywhere_goals), ("below_level", below_level)):
@@ -89,10 +91,10 @@ def make_worlds(
         d = torch.where(below, d * torch.rand(num_envs, generator=generator, device=dev, dtype=dtype), d)
     world, bounds, resolution = _layout(family, d, generator, dtype)
     anywhere = torch.rand(num_envs, generator=generator, device=dev) < anywhere_goals if anywhere_goals > 0 else None
-    if guide_cells < 0:
-        raise ValueError(f"guide_cells must be >= 0, got {guide_cells}")
+    if guide_cells < 0 or guide_margin < 0:
+        raise ValueError(f"guide_cells and guide_margin must be >= 0, got {guide_cells} and {guide_margin}")
     start, goal, length, *field = place_episodes(world, bounds, d, generator, robot_radius=robot_radius, resolution=resolution,
-                                                 anywhere=anywhere, guide_cells=guide_cells)
+                                                 anywhere=anywhere, guide_cells=guide_cells, guide_margin=guide_margin)
     return WorldBatch(
         world=world, start=start, goal=goal, path_length=length, bounds=bounds, difficulty=d,
         family=(family,) * num_envs, robot_radius=robot_radius, goal_field=field[0] if field else None, goal_frame=field[1] if field else None,
@@ -111,7 +113,7 @@ def mix_worlds(
     """``num_envs`` worlds whose family is drawn per env from ``families`` (names, drawn uniformly, or
     ``{name: weight}``; docs/worlds.md, "Several families in one batch"). ``difficulty``: as for
     :func:`make_worlds`, or ``{family: difficulty}`` (a per-family curriculum). ``placement``:
-    ``robot_radius``, ``anywhere_goals``, ``below_level`` and ``guide_cells`` as for :func:`make_worlds`."""
+    ``robot_radius``, ``anywhere_goals``, ``below_level``, ``guide_cells`` and ``guide_margin`` as for :func:`make_worlds`."""
     names = list(families)
     if not names:
         raise ValueError("mix_worlds needs at least one family")
