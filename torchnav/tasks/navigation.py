@@ -239,8 +239,8 @@ class NavTask(BatchedTask):
         collision = sim.collided
         success = (dist < self.cfg.goal_tolerance) & ~collision
         goal_path = self._progress_distance(state.goal_field, state.goal_frame, state.goal, sim.pose, dist, state.goal_path)
-        # Both known (finite): the decrease; else 0, so the terms sum to the first known distance minus the last.
-        progress = torch.where(state.goal_path.isfinite() & goal_path.isfinite(), state.goal_path - goal_path.where(goal_path.isfinite(), 0.0), 0.0)
+        # 0 until a first reading (goal_path then carries the last one), so the terms sum to the first known distance minus the last.
+        progress = torch.where(state.goal_path.isfinite(), state.goal_path - goal_path, 0.0)
         terms = reward_terms(
             self.weights, self.cfg.reward, success=success, collision=collision, vel=sim.vel,
             d_min=sim.ranges.amin(-1), progress=progress, bearing=bearing,
