@@ -148,18 +148,19 @@ def _box_rows(box: Tensor, mask: Tensor, frame: tuple[Tensor, ...]) -> Tensor:
     cr, sr = cb * c + sb * s, sb * c - cb * s  # the box's yaw relative to the camera
     ox, oy = -(cr * lx + sr * ly), -(cr * ly - sr * lx)  # the camera in the box frame
     visible = (mask & ((hx > 0) | (hy > 0))).to(box.dtype)
-    return torch.stack((cr, sr, -hx - ox, hx - ox, -hy - oy, hy - oy, visible))
+    return torch.stack((cr, sr, -ox, hx, -oy, hy, visible))
 
 
 def _box_depth(row: Tensor, m: Tensor, k: Tensor, sqrt_k: Tensor, inv_k: Tensor) -> Tensor:
     """Depth of the columns ``m`` on oriented boxes: ``hit_box``'s slab method in the box frame."""
-    cr, sr, x1, x2, y1, y2, visible = row.unbind(0)
+    cr, sr, mox, hx, moy, hy, visible = row.unbind(0)
     dx, dy = cr + sr * m, cr * m - sr
     ix = 1.0 / torch.where(dx.abs() > _TINY, dx, torch.full_like(dx, _TINY))
     iy = 1.0 / torch.where(dy.abs() > _TINY, dy, torch.full_like(dy, _TINY))
-    tx1, tx2, ty1, ty2 = x1 * ix, x2 * ix, y1 * iy, y2 * iy
-    near = torch.maximum(torch.minimum(tx1, tx2), torch.minimum(ty1, ty2))
-    far = torch.minimum(torch.maximum(tx1, tx2), torch.maximum(ty1, ty2))
+    # Each slab's entry and exit as in the lidar's _hit_box_rows: -o/d -+ h|1/d|.
+    ax, ay, bx, by = mox * ix, moy * iy, hx * ix.abs(), hy * iy.abs()
+    near = torch.maximum(ax - bx, ay - by)
+    far = torch.minimum(ax + bx, ay + by)
     z = torch.where(near >= 0, near, far)
     return torch.where((near <= far) & (far >= 0) & (visible > 0), z, _INF)
 
