@@ -109,8 +109,9 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     return load_checked(path)
 
 
-def find_resume_dir(cfg: Recipe, name: str) -> Path | None:
-    """The run directory to resume: an explicit path, or the newest run of recipe ``name``."""
+def find_resume(cfg: Recipe, name: str) -> Path | None:
+    """What to resume: an explicit run directory or kept checkpoint file (``<run>/checkpoints/<frames>.pt``,
+    ``checkpoint.keep``), or the newest run of recipe ``name``."""
     r = cfg.checkpoint.resume
     if r in (False, None, "", "false"):
         return None
@@ -241,6 +242,6 @@ def main_guard(main: Callable[[list[str]], Any]) -> None:
 
 __all__ = [
     "main_guard", "parse_cli", "load_config", "resumed_config", "task_protocol", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
-    "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume_dir", "StopFlag", "ThreadGovernor", "write_json",
+    "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume", "StopFlag", "ThreadGovernor", "write_json",
     "config_dict", "to_dict",
 ]

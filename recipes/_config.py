@@ -54,8 +54,8 @@ def real() -> Any:
     return checked(is_number, "a float")
 
 
-def flag() -> Any:
-    return checked(lambda v: isinstance(v, bool), "true or false")
+def flag(default: Any = dataclasses.MISSING) -> Any:
+    return checked(lambda v: isinstance(v, bool), "true or false", default)
 
 
 def one_of(*options: str, default: Any = dataclasses.MISSING, hint: str = "") -> Any:
@@ -128,7 +128,10 @@ class LoggerConfig:
 @dataclass(frozen=True)
 class CheckpointConfig:
     interval_frames: int = count(1)  # write <run>/checkpoint.pt every this many frames
-    resume: bool | str  # true: the newest run; or a run directory
+    resume: bool | str  # true: the newest run; or a run directory; or a kept checkpoint file (a new run continues from it)
+    # also keep each interval's checkpoint as <run>/checkpoints/<frames>.pt (hard links: no copy when the
+    # filesystem allows it); default off, so that configs saved before the key existed resume unchanged
+    keep: bool = flag(default=False)
 
 
 @dataclass(frozen=True)

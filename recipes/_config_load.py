@@ -187,21 +187,25 @@ def _leaves(node: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: node}
 
 
-def resumed_config(saved: dict[str, Any], argv: list[str], name: str, run: Path) -> tuple[Recipe, list[str]]:
+def resumed_config(saved: dict[str, Any], argv: list[str], name: str, run: Path | str | None,
+                   source: Path | str | None = None) -> tuple[Recipe, list[str]]:
     """The config a resumed run continues with: the one it was started with (``saved``, from its
-    checkpoint) plus the command line's overrides, of which only :data:`RESUME_CHANGES` may change a
-    value, and ``logger.run_dir`` set to ``run``. Returns the config and one line per changed value;
-    a refused change is a ConfigError."""
+    checkpoint ``source``) plus the command line's overrides, of which only :data:`RESUME_CHANGES` may
+    change a value, and ``logger.run_dir`` set to ``run`` (None: a new automatic run directory). Returns
+    the config and one line per changed value; a refused change is a ConfigError."""
     _, overrides = parse_cli(name, argv)
     saved = migrated(saved)
-    source = f"{run}/config.yaml"
+    label = source or run  # what --resume named
+    source = str(source or f"{run}/config.yaml")
     old = _leaves(to_dict(build(name, saved, [], source)))
+    if run is None:
+        saved = {**saved, "logger": {**saved.get("logger", {}), "run_dir": None}}
     cfg = build(name, saved, overrides, source, run_dir=run)
     new = _leaves(to_dict(cfg))
     changed = [k for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k) and k not in ("checkpoint.resume", "logger.run_dir")]
     refused = [k for k in changed if not any(k == p or (p.endswith(".") and k.startswith(p)) for p in RESUME_CHANGES)]
     if refused:
-        raise ConfigError(f"--resume={run}: cannot change {', '.join(f'{k} ({old.get(k)!r} -> {new.get(k)!r})' for k in refused)}; "
+        raise ConfigError(f"--resume={label}: cannot change {', '.join(f'{k} ({old.get(k)!r} -> {new.get(k)!r})' for k in refused)}; "
                           f"a resumed run keeps the config it was started with except {', '.join(RESUME_CHANGES)}. Start a new run instead.")
     return cfg, [f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in changed]
 

@@ -11,8 +11,11 @@ protocol's (``torchnav.protocol``), picked by the config's ``task`` section (``N
 from __future__ import annotations
 
 import collections
+import os
+import shutil
 import sys
 import time
+from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import torch
@@ -35,13 +38,18 @@ class Trainer:
     def __init__(self, name: str, argv: list[str], ckpt_format: str, action_mode: str | None = None) -> None:
         self.name, self.ckpt_format = name, ckpt_format
         cfg = C.load_config(name, argv)
-        resume_dir = C.find_resume_dir(cfg, name)
+        resume = C.find_resume(cfg, name)
+        # a run directory continues in place; a kept checkpoint file (checkpoint.keep) starts a new run
+        # directory from it (logger.run_dir, or a new automatic one), so the run it came from stays as it was
+        resume_dir = resume if resume is not None and not (resume.is_file() or resume.suffix == ".pt") else None
         self.ckpt: dict[str, Any] | None = None
-        if resume_dir is not None:
-            self.ckpt = C.load_checkpoint(resume_dir / "checkpoint.pt")
+        if resume is not None:
+            ckpt_path = resume / "checkpoint.pt" if resume_dir is not None else resume
+            self.ckpt = C.load_checkpoint(ckpt_path)
             if self.ckpt.get("format") != ckpt_format:
-                raise C.ConfigError(f"{resume_dir / 'checkpoint.pt'} is not a {name} checkpoint (format {self.ckpt.get('format')!r})")
-            cfg, changes = C.resumed_config(self.ckpt["config"], argv, name, resume_dir)
+                raise C.ConfigError(f"{ckpt_path} is not a {name} checkpoint (format {self.ckpt.get('format')!r})")
+            cfg, changes = C.resumed_config(self.ckpt["config"], argv, name, resume_dir or cfg.logger.run_dir,
+                                            source=None if resume_dir is not None else resume)
             for line in changes:
                 print(f"resume: {line}")
             if int(self.ckpt["counters"]["frames"]) >= int(cfg.train.total_frames):
@@ -55,6 +63,8 @@ class Trainer:
         if action_mode is not None and self.task.config.action.mode != action_mode:
             raise C.ConfigError(f"{name} needs task.action.mode={action_mode}, got {self.task.config.action.mode!r}")
         self.run = C.make_run_dir(cfg, name, resuming=resume_dir is not None)
+        if resume is not None and resume_dir is None:
+            print(f"resume: a new run in {self.run} continues {resume} at {int(self.ckpt['counters']['frames']):,} frames")
         C.save_config(cfg, self.run)
         self.logger = C.make_logger(cfg, self.run)
         self.env = self.task.make_env(int(cfg.env.num_envs), self.device, int(cfg.seed))
@@ -186,6 +196,8 @@ class Trainer:
                 if every(cfg.checkpoint.interval_frames) > last_ckpt:
                     last_ckpt = every(cfg.checkpoint.interval_frames)
                     self.save(meta)
+                    if cfg.checkpoint.keep:
+                        _keep(self.run / "checkpoint.pt", self.run / "checkpoints" / f"{int(c['frames'])}.pt")
                 if self.threads.update() is not None:
                     bar.write(f"[threads] {self.threads.threads} (other processes use {self.threads.changes[-1][2]:.1f} of {self.threads.cores} cores)")
                 if stop.stop:
@@ -245,6 +257,17 @@ class Trainer:
               + (f"; reached {100 * cfg.eval.target_success:.0f}% at {c['time_to_target']:.0f} s" if c["time_to_target"] else ""))
         print(f"  run directory: {self.run}  (actor.pt, checkpoint.pt, summary.json, logs/)")
         return result
+
+
+def _keep(checkpoint: Path, kept: Path) -> None:
+    """``kept`` as another name of ``checkpoint`` (a hard link; a copy where links are refused). The next
+    save renames a new file onto ``checkpoint``, so ``kept`` goes on holding this one."""
+    kept.parent.mkdir(exist_ok=True)
+    kept.unlink(missing_ok=True)
+    try:
+        os.link(checkpoint, kept)
+    except OSError:
+        shutil.copyfile(checkpoint, kept)
 
 
 def _log_rates(logger, prefix: str, summary: dict[str, Any], step: int) -> None:

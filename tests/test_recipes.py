@@ -100,6 +100,25 @@ def assert_same_weights(a, b):
         assert torch.equal(wa[k], wb[k]), f"{k} differs by {float((wa[k] - wb[k]).abs().max())}"
 
 
+def test_kept_checkpoints_replay_a_run_from_any_interval(tmp_path):
+    # checkpoint.keep: each interval's checkpoint stays as checkpoints/<frames>.pt; resuming from one
+    # starts a new run directory, leaves the first run as it was, and ends where the first run ended
+    run, replay = tmp_path / "run", tmp_path / "replay"
+    _td3(TINY + ["train.total_frames=512", "eval.record_episodes=0", "checkpoint.keep=true", f"logger.run_dir={run}"])
+    kept = sorted(int(p.stem) for p in (run / "checkpoints").glob("*.pt"))
+    assert kept == [256, 512]
+    assert torch.load(run / "checkpoints" / "256.pt", weights_only=True)["counters"]["frames"] == 256
+    before = (run / "checkpoint.pt").read_bytes()
+
+    res = _td3(TINY + ["train.total_frames=512", "eval.record_episodes=0", f"logger.run_dir={replay}",
+                       f"checkpoint.resume={run / 'checkpoints' / '256.pt'}"])
+    assert res["frames"] == 512 and res["run_dir"] == str(replay)
+    assert (run / "checkpoint.pt").read_bytes() == before, "resuming from a kept checkpoint wrote into the run it came from"
+    assert_same_weights(replay / "actor.pt", run / "actor.pt")
+    # the replay continues with the saved config, checkpoint.keep included
+    assert sorted(p.name for p in (replay / "checkpoints").glob("*.pt")) == ["512.pt"]
+
+
 def test_resume_refuses_another_recipes_checkpoint(tmp_path):
     from torchnav.config import ConfigError
 
