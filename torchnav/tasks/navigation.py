@@ -131,12 +131,9 @@ class NavTask(BatchedTask):
         """New episodes for envs ``idx`` ``(n,)``."""
         c, rc = self.cfg, self.cfg.reset
         n = idx.shape[0]
-        goal_field = torch.zeros(n, self.guide_cells, self.guide_cells, dtype=torch.int16, device=self.device)
-        goal_frame = torch.zeros(n, 3, dtype=self.dtype, device=self.device)
+        guide = None
         if self.families:
             world, start, goal, family, difficulty, bounds, guide = self._generated(n, cur, generator)
-            if guide is not None:
-                goal_field, goal_frame = guide
         else:
             world = self.base_world[idx]
             start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator)
@@ -147,6 +144,11 @@ class NavTask(BatchedTask):
             )
             family = torch.zeros(n, dtype=torch.int64, device=self.device)
             difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
+        if guide is not None:
+            goal_field, goal_frame = guide
+        else:  # no goal grids (reward.progress_distance: euclidean): (n, 0, 0)
+            goal_field = torch.zeros(n, self.guide_cells, self.guide_cells, dtype=torch.int16, device=self.device)
+            goal_frame = torch.zeros(n, 3, dtype=self.dtype, device=self.device)
         movers = None
         if self.n_movers:
             # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).

@@ -18,6 +18,7 @@ so more than ``2 * robot_radius`` apart, farther than the farthest of the 4 cent
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -29,6 +30,12 @@ GUIDE_CELLS = 64  # coarse cells per side of an env's goal-distance grid
 UNKNOWN = torch.iinfo(torch.int16).max  # stored where no path reaches a coarse centre
 _CM = 100.0  # stored units per metre
 _AROUND = ((0, 0), (1, 0), (0, 1), (1, 1))  # the 4 coarse centres around a position, (col, row) offsets
+
+
+@functools.cache
+def _around(device: torch.device) -> Tensor:
+    """:data:`_AROUND` as a ``(4, 2)`` tensor on ``device``, made once (the task's step reads it)."""
+    return torch.tensor(_AROUND, device=device)
 
 
 def coarse_goal_field(
@@ -66,7 +73,7 @@ def goal_distance(field: Tensor, frame: Tensor, goal: Tensor, xy: Tensor) -> Ten
     g = field.shape[-1]
     size = frame[:, 2:3]
     u = (xy - frame[:, :2]) / size - 0.5  # coarse centres sit at whole numbers
-    idx = u.floor().long()[:, None, :] + torch.tensor(_AROUND, device=xy.device)  # (B, 4, 2) [col, row]
+    idx = u.floor().long()[:, None, :] + _around(xy.device)  # (B, 4, 2) [col, row]
     inside = ((idx >= 0) & (idx < g)).all(-1)
     idx = idx.clamp(0, g - 1)
     value = field.reshape(field.shape[0], -1).gather(1, idx[..., 1] * g + idx[..., 0])

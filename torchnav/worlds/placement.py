@@ -32,10 +32,11 @@ def goal_band(difficulty: Tensor) -> tuple[Tensor, Tensor]:
     return lerp(GOAL_BAND_EASY[0], GOAL_BAND_HARD[0], difficulty), lerp(GOAL_BAND_EASY[1], GOAL_BAND_HARD[1], difficulty)
 
 
-def _clearance(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor]:
+def _clearance(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor, tuple[float, float]]:
     """Each cell's clearance ``(B, H, W)`` m to the obstacles and the bounds' edge, exact up to the
-    safe clearance of :func:`free_cells` and at least it beyond, and the centres ``(H, W, 2)`` m of
-    the batch's shared grid, which covers every env's bounds ``(B, 4)``."""
+    safe clearance of :func:`free_cells` and at least it beyond, the centres ``(H, W, 2)`` m of
+    the batch's shared grid, which covers every env's bounds ``(B, 4)``, and the lower-left corner
+    ``(x, y)`` m of its cell ``(0, 0)``."""
     lo = bounds[:, :2].amin(0).tolist()
     hi = bounds[:, 2:].amax(0).tolist()
     shape = (math.ceil((hi[1] - lo[1]) / resolution), math.ceil((hi[0] - lo[0]) / resolution))
@@ -49,7 +50,7 @@ def _clearance(world: World, bounds: Tensor, robot_radius: float, resolution: fl
         torch.minimum(centres[..., 0] - b[..., 0], b[..., 2] - centres[..., 0]),
         torch.minimum(centres[..., 1] - b[..., 1], b[..., 3] - centres[..., 1]),
     )
-    return torch.minimum(clear, edge), centres
+    return torch.minimum(clear, edge), centres, (lo[0], lo[1])
 
 
 def _safe(robot_radius: float, resolution: float) -> float:
@@ -60,7 +61,7 @@ def _safe(robot_radius: float, resolution: float) -> float:
 def free_cells(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor]:
     """Cells ``(B, H, W)`` whose centre is safe for the robot (see the module notes), and the
     centres ``(H, W, 2)`` m of the batch's shared grid, which covers every env's bounds ``(B, 4)``."""
-    clear, centres = _clearance(world, bounds, robot_radius, resolution)
+    clear, centres, _ = _clearance(world, bounds, robot_radius, resolution)
     return clear > _safe(robot_radius, resolution), centres
 
 
@@ -110,7 +111,7 @@ def _place(
     min_goal_distance: float, guide_cells: int, guide_margin: float,
 ) -> tuple[Tensor, ...]:
     """:func:`place_episodes` for one chunk of envs."""
-    clear, centres = _clearance(world, bounds, robot_radius, resolution)
+    clear, centres, origin = _clearance(world, bounds, robot_radius, resolution)
     free = clear > _safe(robot_radius, resolution)
     empty = ~free.flatten(1).any(1)
     if empty.any():
@@ -124,7 +125,6 @@ def _place(
     out = (torch.cat((flat[start_cell] + jitter[0], heading), -1), flat[goal_cell] + jitter[1], length)
     if not guide_cells:
         return out
-    origin = (float(centres[0, 0, 0]) - resolution / 2, float(centres[0, 0, 1]) - resolution / 2)
     return out + coarse_goal_field(_goal_wavefront(clear, goal_cell, robot_radius + guide_margin), origin, resolution, bounds, guide_cells)
 
 
@@ -145,9 +145,8 @@ def goal_distance_grid(
     m may stand on (clearance above the radius), or with ``margin`` m more to spare (paths keep
     that far from obstacles, and gaps narrower than ``2 * (robot_radius + margin)`` close).
     Raises ValueError where a goal's cell is not one where the disc fits."""
-    clear, centres = _clearance(world, bounds, robot_radius, resolution)
+    clear, _, origin = _clearance(world, bounds, robot_radius, resolution)
     free = clear > robot_radius
-    origin = (float(centres[0, 0, 0]) - resolution / 2, float(centres[0, 0, 1]) - resolution / 2)
     h, w = free.shape[1:]
     col = ((goal[:, 0] - origin[0]) / resolution).floor().long()
     row = ((goal[:, 1] - origin[1]) / resolution).floor().long()
