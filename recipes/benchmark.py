@@ -29,7 +29,9 @@ for any training seed below 980000.
 
 Writes to ``--out`` (default runs/benchmark), after every cell: ``results.json`` (every
 summary, each method's exact config and seed per cell, planner statistics),
-``results.md`` (cells x methods: success % with its 95% Wilson interval) and, at the end,
+``results.md`` (cells x methods: success % with its 95% Wilson interval; with two or more
+methods, a second table pairs each with the first on the same episodes: success difference and
+exact McNemar p, from each episode's outcome kept in ``results.json``) and, at the end,
 ``heatmap.png`` (methods x cells, success %).
 """
 
@@ -51,7 +53,7 @@ from compare import _pct, evaluate_method, load_methods, method_configs  # noqa:
 
 from torchnav.config import to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, PlannerController  # noqa: E402
-from torchnav.evaluation import eval_config  # noqa: E402
+from torchnav.evaluation import eval_config, paired_successes  # noqa: E402
 from torchnav.maps import available_maps  # noqa: E402
 from torchnav.tasks import NavConfig  # noqa: E402
 from torchnav.worlds import FAMILIES  # noqa: E402
@@ -141,6 +143,36 @@ def markdown(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: in
             s = results[m].get(c.label, "–")
             row.append("n/a" if s is None else s if s == "–" else _pct(s, "success"))
         lines.append(f"| {c.label} | {c.seed} | " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n" + paired_table(results, cells)
+
+
+def paired_table(results: dict[str, dict[str, Any]], cells: list[Cell]) -> str:
+    """With two or more methods, each against the first on the same episodes: the difference in
+    success points, the episodes only the first / only the other succeeded on, and the exact
+    McNemar p (``torchnav.evaluation.paired_successes``); "" with one method."""
+    methods = list(results)
+    if len(methods) < 2:
+        return ""
+    ref, others = methods[0], methods[1:]
+    lines = [
+        "",
+        f"Paired against {ref} on the same episodes: success points of {ref} minus the other's "
+        f"(episodes only {ref} / only the other succeeded on, exact McNemar p; p < 0.05 is unlikely by chance "
+        "in one cell, but expect about one such cell in 20 among equal methods).",
+        "",
+        "| cell | " + " | ".join(others) + " |",
+        "|---|" + "---:|" * len(others),
+    ]
+    for c in cells:
+        a, row = results[ref].get(c.label, "–"), []
+        for m in others:
+            b = results[m].get(c.label, "–")
+            if a is None or b is None or a == "–" or b == "–":
+                row.append("n/a" if a is None or b is None else "–")
+                continue
+            d = paired_successes([o == "S" for o in a["outcomes"]], [o == "S" for o in b["outcomes"]])
+            row.append(f"{100 * d['difference']:+.1f} ({d['only_a']}/{d['only_b']}, p {d['p']:.2g})")
+        lines.append(f"| {c.label} | " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"
 
 

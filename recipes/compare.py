@@ -98,7 +98,10 @@ def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed:
     if hasattr(policy, "stats"):
         policy.stats = {"plans": 0, "no_path": 0, "seconds": 0.0}
     t0 = time.perf_counter()
-    s = summarize(run_episodes(policy, cfg, episodes, seed=seed, device=device))
+    res = run_episodes(policy, cfg, episodes, seed=seed, device=device)
+    s = summarize(res)
+    # each episode's outcome (S success, C collision, T timeout), for paired comparisons of methods
+    s["outcomes"] = "".join("S" if ok else "C" if hit else "T" for ok, hit in zip(res["success"].tolist(), res["collision"].tolist()))
     stats = getattr(policy, "stats", None)
     if stats is not None:
         stats = {**stats, "ms_per_plan": 1e3 * stats["seconds"] / max(stats["plans"], 1)}

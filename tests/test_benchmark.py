@@ -51,10 +51,17 @@ def test_tiny_suite_writes_table_json_and_heatmap(tmp_path):
             s = saved["results"][m][label]["success"]
             assert saved["results"][m][label]["episodes"] == 3 and 0 <= s["rate"] <= 1
             assert s["ci95"][0] - 1e-9 <= s["rate"] <= s["ci95"][1] + 1e-9
+            outcomes = saved["results"][m][label]["outcomes"]  # one letter per episode, counted as the summary counts
+            assert len(outcomes) == 3 and all(outcomes.count(k[0].upper()) == saved["results"][m][label][k]["count"]
+                                              for k in ("success", "collision", "timeout"))
     assert set(saved["planning"]["astar"]) == {"arena", "empty"}
     md = (tmp_path / "results.md").read_text()
     assert "| cell | seed | td3_arena_actor | reactive | astar |" in md
-    assert all(md.count(f"| {c} |") == 1 for c in CELLS) and md.count("| n/a |") == 1
+    table, paired = md.split("Paired against td3_arena_actor")
+    assert all(table.count(f"| {c} |") == 1 for c in CELLS) and table.count("| n/a |") == 1
+    # the paired table: a row per cell, a column per other method, n/a where the planner did not run
+    assert "| cell | reactive | astar |" in paired and all(paired.count(f"| {c} |") == 1 for c in CELLS)
+    assert paired.count("n/a") == 1 and paired.count(", p ") == 5
     assert (tmp_path / "heatmap.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the same arguments give the same episodes and results
     again = benchmark.main(TINY + ["--out", str(tmp_path / "again")])
@@ -143,3 +150,18 @@ def test_missing_or_corrupt_checkpoint_is_named(tmp_path):
         with pytest.raises(error, match=path.name):
             benchmark.main([str(path), "--maps", "arena", "--out", str(tmp_path / "out")])
     assert not (tmp_path / "out").exists()
+
+
+def test_paired_successes_is_the_exact_mcnemar_test():
+    from torchnav.evaluation import paired_successes
+
+    d = paired_successes([True] * 10 + [False] * 5, [False] * 15)
+    assert (d["only_a"], d["only_b"], d["difference"]) == (10, 0, pytest.approx(10 / 15))
+    assert d["p"] == pytest.approx(2 / 2**10)  # 10 discordant episodes all one way
+    # 3 against 12: 2 * P(X <= 3), X ~ Binomial(15, 1/2) = 2 * (1 + 15 + 105 + 455) / 2^15
+    d = paired_successes([True] * 3 + [False] * 12 + [True] * 5, [False] * 3 + [True] * 12 + [True] * 5)
+    assert (d["only_a"], d["only_b"], d["episodes"]) == (3, 12, 20) and d["p"] == pytest.approx(2 * 576 / 2**15)
+    assert paired_successes([True, False], [True, False])["p"] == 1.0  # no discordant episode
+    assert paired_successes([True, False, True, False], [False, True, False, True])["p"] == 1.0  # capped at 1
+    with pytest.raises(ValueError, match="same episodes"):
+        paired_successes([True], [True, False])
