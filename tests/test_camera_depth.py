@@ -116,8 +116,13 @@ def _render(z, look, cam):
     return img.round().clamp(0, 255).to(torch.uint8)
 
 
-def test_unrolled_and_batched_slots_agree():
-    """Kinds of up to 4 slots run one slot at a time in eager mode, larger ones as one (B, W, N) pass."""
+def test_unrolled_and_batched_slots_agree(monkeypatch):
+    """Kinds of up to 4 slots run one slot at a time in eager mode (here in a small batch too), larger
+    ones as one (B, W, N) pass."""
+    from torchnav.sim import raycast
+
+    monkeypatch.setattr(raycast, "EAGER_UNROLL_MIN_RAYS", 0)
+    assert raycast.unrolled(4, 32 * CAM.n_cols) and not raycast.unrolled(5, 32 * CAM.n_cols)
     g = torch.Generator().manual_seed(3)
     world = random_world(32, g, n_seg=4, n_circ=4, n_box=4)
     pose = poses_inside(world, 32, g)

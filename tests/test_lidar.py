@@ -240,3 +240,19 @@ def test_far_circle_is_precise_in_float32():
     far = LidarParams(n_rays=1, fov=0.1, max_range=6000.0)
     assert float(scan([0, 0, 0], far, dtype=torch.float32, circles=circle)) == pytest.approx(want, abs=2e-3)
     assert float(scan([0, 0, 0], far, dtype=F64, circles=circle)) == pytest.approx(want, abs=1e-9)
+
+
+def test_default_reduction_unrolls_few_slots_in_large_eager_batches_only():
+    from torchnav.sim.raycast import EAGER_UNROLL_MIN_RAYS, EAGER_UNROLL_SLOTS, unrolled
+
+    assert unrolled(EAGER_UNROLL_SLOTS, EAGER_UNROLL_MIN_RAYS)
+    assert not unrolled(EAGER_UNROLL_SLOTS + 1, EAGER_UNROLL_MIN_RAYS)  # many slots: one (B, R, N) pass
+    assert not unrolled(EAGER_UNROLL_SLOTS, 128 * 20)  # 128 envs x 20 rays: launches cost more than memory
+    # the default gives what either explicit reduction gives, on both sides of the threshold
+    g = torch.Generator().manual_seed(5)
+    for b in (8, EAGER_UNROLL_MIN_RAYS // 20 + 1):
+        world = random_world(b, (4, 3, 2), seed=b, dtype=torch.float32)
+        pose = torch.cat((torch.rand(b, 2, generator=g) * 4 - 2, torch.rand(b, 1, generator=g) * 6 - 3), 1)
+        default = lidar_scan(pose, world, LidarParams(n_rays=20))
+        for unroll in (True, False):
+            torch.testing.assert_close(lidar_scan(pose, world, LidarParams(n_rays=20), unroll=unroll), default, rtol=0, atol=1e-5)

@@ -28,7 +28,7 @@ from torch import Tensor
 
 from .math import rotate
 from .params import RGB, CameraParams
-from .raycast import _PARALLEL_EPS, _TINY, EAGER_UNROLL_SLOTS, UNROLL_SLOTS
+from .raycast import _PARALLEL_EPS, _TINY, unrolled
 from .state import World
 
 _INF = float("inf")
@@ -186,7 +186,7 @@ def camera_depth(pose: Tensor, world: World, camera: CameraParams, movers: World
     """Depth row ``(B, n_cols)`` in m (along the optical axis), left column first; differentiable.
 
     ``movers``, if given, is a second world (the moving obstacles) seen as well. Kinds with
-    few slots run one slot at a time (``raycast.UNROLL_SLOTS``), as the lidar does."""
+    few slots run one slot at a time where the lidar's would (``raycast.unrolled``)."""
     frame, cols = _camera_frame(pose, camera), _columns(camera, pose)
     best = pose.new_full((pose.shape[0], camera.n_cols), _INF)
     for source in (world, movers):
@@ -196,7 +196,7 @@ def camera_depth(pose: Tensor, world: World, camera: CameraParams, movers: World
             if not n:
                 continue
             row = rows(obs, getattr(source, mkey), frame)  # (k, B, N)
-            if n <= (UNROLL_SLOTS if torch.compiler.is_compiling() else EAGER_UNROLL_SLOTS):
+            if unrolled(n, best.numel()):
                 for i in range(n):
                     best = torch.minimum(best, depth(row[:, :, i : i + 1], *cols))
             else:

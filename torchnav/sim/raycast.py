@@ -9,10 +9,12 @@ narrow-phase reductions test every ray against every slot of a kind:
   ``torch.compile`` this fuses into one loop over contiguous memory and never
   materialises ``(B, R, N)`` temporaries (see docs/performance.md).
 
-By default each set of slots (one kind of obstacle, or a broad phase's dense set)
-is unrolled when it holds at most ``UNROLL_SLOTS`` slots under ``torch.compile``
-(``EAGER_UNROLL_SLOTS`` in eager mode, where every unrolled slot costs kernel
-launches) and batched otherwise.
+By default (:func:`unrolled`) each set of slots (one kind of obstacle, or a broad
+phase's dense set) is unrolled when it holds at most ``UNROLL_SLOTS`` slots under
+``torch.compile``; in eager mode, where every unrolled slot costs a few dozen kernel
+launches, only when it holds at most ``EAGER_UNROLL_SLOTS`` slots and the batch casts
+at least ``EAGER_UNROLL_MIN_RAYS`` rays (below that, launches cost more than the
+``(B, R, N)`` temporaries). Otherwise it is batched.
 
 For worlds with many obstacles, :func:`cast_fan` adds a broad phase for evenly
 spaced rays (a lidar fan): an obstacle can only be hit by the rays that pass
@@ -150,7 +152,15 @@ def bounding_circles(key: str, obs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 UNROLL_SLOTS = 32  # compiled: sets of at most this many slots are unrolled unless the caller says otherwise
-EAGER_UNROLL_SLOTS = 4  # the same in eager mode
+EAGER_UNROLL_SLOTS = 4  # the same in eager mode ...
+EAGER_UNROLL_MIN_RAYS = 8192  # ... when the batch casts at least this many rays (docs/performance.md, "Unrolled or batched lidar")
+
+
+def unrolled(n_slots: int, n_rays: int) -> bool:
+    """The default reduction of a set of ``n_slots`` slots met by ``n_rays`` rays in all (module docstring)."""
+    if torch.compiler.is_compiling():
+        return n_slots <= UNROLL_SLOTS
+    return n_slots <= EAGER_UNROLL_SLOTS and n_rays >= EAGER_UNROLL_MIN_RAYS
 
 
 def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask: Tensor, fn, rows, unroll: bool | None) -> Tensor:
@@ -159,7 +169,7 @@ def _cast_all(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, obs: Tensor, mask:
     The slots are first turned into the kind's rows (``KINDS``), materialised component-major."""
     obs = planar_rows(rows(obs))
     if unroll is None:
-        unroll = obs.shape[1] <= (UNROLL_SLOTS if torch.compiler.is_compiling() else EAGER_UNROLL_SLOTS)
+        unroll = unrolled(obs.shape[1], dx.numel())
     if unroll:
         best = torch.full_like(dx, _INF)
         for i in range(obs.shape[1]):
@@ -173,8 +183,8 @@ def cast_rays(origin: Tensor, angles: Tensor, world: World, unroll: bool | None 
     """Nearest hit distance ``(B, R)`` of rays from ``origin`` ``(B, 2)`` at world ``angles`` ``(B, R)``;
     ``inf`` where a ray hits nothing. Every ray against every slot (no broad phase).
 
-    ``unroll`` picks the reduction (see the module docstring); ``None`` unrolls the
-    kinds with few slots.
+    ``unroll`` picks the reduction (see the module docstring); ``None`` lets :func:`unrolled`
+    choose for each kind.
     """
     dx, dy = torch.cos(angles), torch.sin(angles)
     ox, oy = origin[:, 0:1], origin[:, 1:2]  # (B, 1)
