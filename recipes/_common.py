@@ -15,7 +15,7 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 import torch
 from _config import LOGGER_BACKENDS, RECIPES, Recipe, check_backend, check_threads  # noqa: F401
@@ -229,6 +229,18 @@ def config_dict(cfg: Recipe) -> dict[str, Any]:
     return to_dict(cfg)
 
 
+def adam(params: Iterable[torch.Tensor], **kwargs: Any) -> torch.optim.Adam:
+    """``torch.optim.Adam`` with its fused kernel (one kernel per step for all parameters instead of
+    several per parameter), where the parameters' device has one, else the plain one. Same
+    algorithm, other rounding: TD3's update at the quick start's sizes took 5.9 instead of 8.0 ms
+    (docs/performance.md, "Fused Adam")."""
+    params = list(params)
+    try:
+        return torch.optim.Adam(params, fused=True, **kwargs)
+    except RuntimeError:  # a device without a fused Adam
+        return torch.optim.Adam(params, **kwargs)
+
+
 def main_guard(main: Callable[[list[str]], Any]) -> None:
     """Run ``main(sys.argv[1:])`` for a command-line tool: bad input (a config, map, track or
     checkpoint error, a missing file, any ValueError naming what is wrong) becomes one line on
@@ -243,5 +255,5 @@ def main_guard(main: Callable[[list[str]], Any]) -> None:
 __all__ = [
     "main_guard", "parse_cli", "load_config", "resumed_config", "task_protocol", "make_run_dir", "save_config", "check_logger", "make_logger", "seed_everything", "rng_states",
     "set_rng_states", "save_checkpoint", "load_checkpoint", "find_resume", "StopFlag", "ThreadGovernor", "write_json",
-    "config_dict", "to_dict",
+    "config_dict", "to_dict", "adam",
 ]

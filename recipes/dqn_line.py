@@ -45,7 +45,7 @@ def main(argv: list[str]) -> dict:
     loss = DQNLoss(qvalue, loss_function="l2", delay_value=True, double_dqn=True, action_space=env.action_spec_unbatched)
     loss.make_value_estimator(gamma=tc.gamma)
     target_update = SoftUpdate(loss, tau=tc.tau)
-    optim = torch.optim.Adam(loss.parameters(), lr=tc.lr)
+    optim = C.adam(loss.parameters(), lr=tc.lr)
     exploration = EGreedyModule(env.action_spec_unbatched, eps_init=float(tc.eps_init), eps_end=float(tc.eps_end),
                                 annealing_num_steps=int(tc.eps_anneal_frames), device=device)
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)

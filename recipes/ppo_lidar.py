@@ -106,7 +106,7 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
     loss = ClipPPOLoss(policy, critic, clip_epsilon=tc.clip_epsilon, entropy_coeff=tc.entropy_coeff,
                        critic_coeff=tc.critic_coeff, loss_critic_type="l2", normalize_advantage=True)
     gae = GAE(gamma=tc.gamma, lmbda=tc.lmbda, value_network=critic, average_gae=False)
-    optim = torch.optim.Adam(loss.parameters(), lr=tc.lr, eps=1e-5)
+    optim = C.adam(loss.parameters(), lr=tc.lr, eps=1e-5)
     t.restore({"loss": loss, "optim": optim})
     t.export_actor = lambda: loc_net.squashed()
 

@@ -64,8 +64,8 @@ def main(argv: list[str]) -> dict:
     actor = Actor(obs_size, act_size, tc.hidden).to(device)
     critic = TwinQ(obs_size, act_size, tc.hidden).to(device)
     actor_target, critic_target = copy.deepcopy(actor).requires_grad_(False), copy.deepcopy(critic).requires_grad_(False)
-    opt_actor = torch.optim.Adam(actor.parameters(), lr=tc.lr_actor)
-    opt_critic = torch.optim.Adam(critic.parameters(), lr=tc.lr_critic)
+    opt_actor = C.adam(actor.parameters(), lr=tc.lr_actor)
+    opt_critic = C.adam(critic.parameters(), lr=tc.lr_critic)
     exploration = AdditiveGaussianModule(
         spec=env.action_spec_unbatched, sigma_init=float(tc.expl_sigma_init), sigma_end=float(tc.expl_sigma_end),
         annealing_num_steps=int(tc.expl_anneal_frames), device=device,
