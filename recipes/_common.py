@@ -109,20 +109,27 @@ def load_checkpoint(path: Path) -> dict[str, Any]:
     return load_checked(path)
 
 
-def find_resume(cfg: Recipe, name: str) -> Path | None:
-    """What to resume: an explicit run directory or kept checkpoint file (``<run>/checkpoints/<frames>.pt``,
-    ``checkpoint.keep``), or the newest run of recipe ``name``."""
+def find_resume(cfg: Recipe, name: str) -> tuple[Path, Path | None] | None:
+    """What ``checkpoint.resume`` names, as ``(checkpoint file, run directory to continue in)``, or None:
+    a run directory (explicit, or the newest run of recipe ``name``) continues in place; a kept
+    checkpoint file (``<run>/checkpoints/<frames>.pt``, ``checkpoint.keep``) has no run directory to
+    continue in: a new run starts from it, so the run it came from stays as it was."""
     r = cfg.checkpoint.resume
     if r in (False, None, "", "false"):
         return None
     if r is True or r == "true":
         if cfg.logger.run_dir:
-            return Path(cfg.logger.run_dir)
-        runs = sorted((p for p in Path(cfg.logger.root).glob(f"{name}_*") if (p / "checkpoint.pt").is_file()), key=lambda p: p.stat().st_mtime)
-        if not runs:
-            raise FileNotFoundError(f"--resume: no {name} run with a checkpoint.pt under {cfg.logger.root}")
-        return runs[-1]
-    return Path(str(r))
+            run = Path(cfg.logger.run_dir)
+        else:
+            runs = sorted((p for p in Path(cfg.logger.root).glob(f"{name}_*") if (p / "checkpoint.pt").is_file()), key=lambda p: p.stat().st_mtime)
+            if not runs:
+                raise FileNotFoundError(f"--resume: no {name} run with a checkpoint.pt under {cfg.logger.root}")
+            run = runs[-1]
+        return run / "checkpoint.pt", run
+    path = Path(str(r))
+    if path.is_file() or path.suffix == ".pt":
+        return path, None
+    return path / "checkpoint.pt", path
 
 
 class ThreadGovernor:

@@ -39,17 +39,15 @@ class Trainer:
         self.name, self.ckpt_format = name, ckpt_format
         cfg = C.load_config(name, argv)
         resume = C.find_resume(cfg, name)
-        # a run directory continues in place; a kept checkpoint file (checkpoint.keep) starts a new run
-        # directory from it (logger.run_dir, or a new automatic one), so the run it came from stays as it was
-        resume_dir = resume if resume is not None and not (resume.is_file() or resume.suffix == ".pt") else None
+        ckpt_path, resume_dir = resume if resume is not None else (None, None)
         self.ckpt: dict[str, Any] | None = None
-        if resume is not None:
-            ckpt_path = resume / "checkpoint.pt" if resume_dir is not None else resume
+        if ckpt_path is not None:
             self.ckpt = C.load_checkpoint(ckpt_path)
             if self.ckpt.get("format") != ckpt_format:
                 raise C.ConfigError(f"{ckpt_path} is not a {name} checkpoint (format {self.ckpt.get('format')!r})")
+            # from a kept checkpoint file: a new run directory (logger.run_dir, or a new automatic one)
             cfg, changes = C.resumed_config(self.ckpt["config"], argv, name, resume_dir or cfg.logger.run_dir,
-                                            source=None if resume_dir is not None else resume)
+                                            source=None if resume_dir is not None else ckpt_path)
             for line in changes:
                 print(f"resume: {line}")
             if int(self.ckpt["counters"]["frames"]) >= int(cfg.train.total_frames):
@@ -63,8 +61,8 @@ class Trainer:
         if action_mode is not None and self.task.config.action.mode != action_mode:
             raise C.ConfigError(f"{name} needs task.action.mode={action_mode}, got {self.task.config.action.mode!r}")
         self.run = C.make_run_dir(cfg, name, resuming=resume_dir is not None)
-        if resume is not None and resume_dir is None:
-            print(f"resume: a new run in {self.run} continues {resume} at {int(self.ckpt['counters']['frames']):,} frames")
+        if ckpt_path is not None and resume_dir is None:
+            print(f"resume: a new run in {self.run} continues {ckpt_path} at {int(self.ckpt['counters']['frames']):,} frames")
         C.save_config(cfg, self.run)
         self.logger = C.make_logger(cfg, self.run)
         self.env = self.task.make_env(int(cfg.env.num_envs), self.device, int(cfg.seed))

@@ -91,6 +91,11 @@ def method_configs(methods: list[tuple[str, Any, NavConfig | None]], base: NavCo
     return out
 
 
+def outcome_letter(success: bool, collision: bool) -> str:
+    """An episode's outcome as one letter: S success, C collision, T timeout."""
+    return "S" if success else "C" if collision else "T"
+
+
 def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed: int, device: str,
                     where: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """``summarize`` of ``episodes`` episodes of ``policy`` on ``cfg`` and, for a planner, its statistics
@@ -101,7 +106,7 @@ def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed:
     res = run_episodes(policy, cfg, episodes, seed=seed, device=device)
     s = summarize(res)
     # each episode's outcome (S success, C collision, T timeout), for paired comparisons of methods
-    s["outcomes"] = "".join("S" if ok else "C" if hit else "T" for ok, hit in zip(res["success"].tolist(), res["collision"].tolist()))
+    s["outcomes"] = "".join(map(outcome_letter, res["success"].tolist(), res["collision"].tolist()))
     stats = getattr(policy, "stats", None)
     if stats is not None:
         stats = {**stats, "ms_per_plan": 1e3 * stats["seconds"] / max(stats["plans"], 1)}
@@ -130,7 +135,7 @@ def trajectories(policy, cfg: NavConfig, n: int, seed: int, device: str = "cpu")
             poses.append(pose.clone())
             for e in new.nonzero().squeeze(-1).tolist():
                 end[e] = t + 1
-                outcome[e] = "S" if nxt["success"][e].item() else "C" if nxt["collision"][e].item() else "T"
+                outcome[e] = outcome_letter(nxt["success"][e].item(), nxt["collision"][e].item())
             finished |= new
             if finished.all():
                 break
