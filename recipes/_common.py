@@ -248,6 +248,14 @@ def adam(params: Iterable[torch.Tensor], **kwargs: Any) -> torch.optim.Adam:
         return torch.optim.Adam(params, **kwargs)
 
 
+def decay_lr(optim: torch.optim.Optimizer, lr: float, frames: int, total_frames: int) -> None:
+    """Set ``optim``'s learning rate to ``lr`` falling linearly to 0 at ``total_frames`` (``train.lr_decay``).
+    Computed from the frame count, so a resumed run continues the same schedule."""
+    keep = max(0.0, 1.0 - frames / total_frames)
+    for group in optim.param_groups:
+        group["lr"] = float(lr) * keep
+
+
 def main_guard(main: Callable[[list[str]], Any]) -> None:
     """Run ``main(sys.argv[1:])`` for a command-line tool: bad input (a config, map, track or
     checkpoint error, a missing file, any ValueError naming what is wrong) becomes one line on

@@ -231,6 +231,7 @@ class PPOTrain(Discrete, Collected):
     # defaults so that configs saved before these keys existed resume as feed-forward runs
     recurrent: str = one_of(*RECURRENT, default="off", hint=' (in a YAML file quote "off": unquoted it reads as false)')  # docs/training.md
     recurrent_hidden: int = count(1, default=128)  # size of the GRU state (train.recurrent: gru)
+    lr_decay: bool = flag(default=False)  # the learning rate falls linearly to 0 at total_frames
 
 
 @dataclass(frozen=True)

@@ -98,10 +98,8 @@ def main(argv: list[str], name: str = "apg_lidar") -> dict:
 
     def update(batch: TensorDict) -> dict[str, Tensor]:
         if tc.lr_decay:  # linearly to 0 at train.total_frames, as SHAC
-            keep = max(0.0, 1.0 - t.counters["frames"] / int(tc.total_frames))
             for opt, lr in ((opt_actor, tc.lr_actor), (opt_critic, tc.lr_critic)):
-                for group in opt.param_groups:
-                    group["lr"] = float(lr) * keep
+                C.decay_lr(opt, lr, t.counters["frames"], int(tc.total_frames))
         # actor: backpropagate the horizon's return through the simulator
         loss = horizon_loss(batch, float(tc.action_reg))
         opt_actor.zero_grad(set_to_none=True)

@@ -120,6 +120,8 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
             *((STATE_KEY, ("episode", "length")) if recurrent else ()))
 
     def update(batch):
+        if tc.lr_decay:  # linearly towards 0 at train.total_frames: the first batch at train.lr, the last at lr / batches
+            C.decay_lr(optim, tc.lr, t.counters["frames"] - int(tc.frames_per_batch), int(tc.total_frames))
         batch = batch.select(*keys)
         with torch.no_grad():
             gae(batch)

@@ -119,6 +119,17 @@ def test_kept_checkpoints_replay_a_run_from_any_interval(tmp_path):
     assert sorted(p.name for p in (replay / "checkpoints").glob("*.pt")) == ["512.pt"]
 
 
+def test_ppo_lr_decay_falls_linearly_to_zero_at_total_frames(tmp_path):
+    # train.lr_decay: each update sets the rate from the frames collected before its batch; the last of
+    # 4 batches of 128 frames is trained at a quarter of train.lr, and the default (off) keeps train.lr
+    for decay, want in ((True, 0.25), (False, 1.0)):
+        run = tmp_path / str(decay)
+        _run("ppo_lidar", TINY_ARGS["ppo_lidar"] + ["train.total_frames=512", "train.lr=0.001", f"train.lr_decay={str(decay).lower()}",
+                                                    "eval.record_episodes=0", f"logger.run_dir={run}"])
+        ck = torch.load(run / "checkpoint.pt", weights_only=True)
+        assert [g["lr"] for g in ck["optim"]["param_groups"]] == pytest.approx([0.001 * want])
+
+
 def test_resume_refuses_another_recipes_checkpoint(tmp_path):
     from torchnav.config import ConfigError
 
