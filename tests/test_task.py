@@ -451,6 +451,27 @@ def test_goal_from_odometry_changes_the_observation_not_the_pose():
     assert torch.equal(oo["reward"], ot["reward"])
 
 
+def test_goal_distance_cap_limits_only_the_observed_distance():
+    # observation.goal_distance_cap: the goal distance entry reads min(distance, cap); the rest of the
+    # observation and the reward are unchanged; a cap must be a positive number of metres
+    from torchnav.config import ConfigError
+
+    plain, capped = make_task("warehouse", n=6), make_task("warehouse", n=6, observation={"goal_distance_cap": 0.7})
+    sp, _, gp = start(plain, seed=3)
+    sc, _, gc = start(capped, seed=3)
+    a = torch.tensor([[0.5, 0.1]] * 6)
+    sp, op = plain.step(sp, a, gp)
+    sc, oc = capped.step(sc, a, gc)
+    dist, _ = plain.goal_vector(sp.sim.pose, sp.goal)
+    assert (dist > 0.7).any() and (dist < 0.7).any()  # both sides of the cap are checked
+    torch.testing.assert_close(oc["observation"][:, 20], dist.clamp(max=0.7) / 10.0)
+    keep = [i for i in range(24) if i != 20]
+    assert torch.equal(oc["observation"][:, keep], op["observation"][:, keep]) and torch.equal(oc["reward"], op["reward"])
+    for bad in (0.0, -1.0, math.inf):
+        with pytest.raises(ConfigError, match="goal_distance_cap"):
+            make_task("arena", n=1, observation={"goal_distance_cap": bad})
+
+
 def test_lidar_noise_changes_ranges_within_bounds():
     clean, noisy = make_task("arena", n=4), make_task("arena", n=4, lidar={"noise_std": 0.5})
     sc, _, gc = start(clean, seed=1)

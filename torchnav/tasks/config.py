@@ -130,6 +130,7 @@ class ObservationConfig:
     goal_from_odom: bool = False  # goal vector from the drifting odometry instead of the true pose
     imu: bool = False  # append the IMU reading [a_x, a_y, yaw rate] (needs imu.enabled)
     camera: bool = False  # append the camera's depth row, n_cols values (needs camera.enabled)
+    goal_distance_cap: float | None = None  # m: the goal distance observed is at most this (None: uncapped)
 
 
 @dataclass(frozen=True)
@@ -221,6 +222,8 @@ class NavConfig(TaskConfig):
             (self.action.mode in ACTION_MODES, f"action.mode must be one of {ACTION_MODES}, got {self.action.mode!r}"),
             (len(self.action.discrete_set) >= 2, "action.discrete_set needs at least 2 actions"),
             (self.observation.history >= 1, "observation.history must be >= 1"),
+            (self.observation.goal_distance_cap is None or (math.isfinite(self.observation.goal_distance_cap) and self.observation.goal_distance_cap > 0),
+             f"observation.goal_distance_cap must be null or a finite number of metres > 0, got {self.observation.goal_distance_cap}"),
             (not self.observation.imu or self.imu.enabled, "observation.imu needs imu.enabled: true"),
             (not self.observation.camera or self.camera.enabled, "observation.camera needs camera.enabled: true"),
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),

@@ -117,6 +117,8 @@ class NavTask(BatchedTask):
         sectors = sectorize(sim.ranges, self.n_sectors)
         pose = sim.odom if self.cfg.observation.goal_from_odom else sim.pose
         dist, bearing = self.goal_vector(pose, goal)
+        if self.cfg.observation.goal_distance_cap is not None:
+            dist = dist.clamp(max=self.cfg.observation.goal_distance_cap)
         parts = [sectors, dist[:, None], bearing[:, None], sim.vel]
         if self.n_imu:
             parts.append(sim.imu)
