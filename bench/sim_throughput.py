@@ -8,11 +8,13 @@ space, random twist commands. The step is kinematics + odometry + collision
 
 Modes (``--modes``, comma separated):
 
-* ``eager``             ``torchnav.sim.step`` as is (lidar reduction chosen
-                        automatically: unrolled for this load of 12 obstacle slots).
-* ``eager-batched``     the same stages composed here, with
-                        ``lidar_scan(..., unroll=False)`` (one ``(B, R, N)`` pass per
-                        obstacle kind, reduced by ``amin``).
+* ``eager``             ``torchnav.sim.step`` as is (lidar reduction chosen per obstacle
+                        kind by ``raycast.unrolled``: for this load's 4 slots per kind,
+                        unrolled from 8,192 rays in the batch, 410 envs, and batched below).
+* ``eager-batched``     ``step(..., unroll=False)``: one ``(B, R, N)`` pass per obstacle
+                        kind, reduced by ``amin``.
+* ``eager-unrolled``    ``step(..., unroll=True)``: a running minimum over the slots (with
+                        ``eager-batched``, the two sides of the rule above).
 * ``compiled``          ``torch.compile`` of a function that calls ``step``.
 * ``compiled-batched``  ``torch.compile`` of the batched composition.
 * ``cudagraphs``        CUDA only: ``torch.compile(mode="reduce-overhead")`` of ``step``.
@@ -26,6 +28,7 @@ docs/performance.md for the method and what each figure means.
     python bench/sim_throughput.py --sizes 4096 --modes eager,compiled --stages
     python bench/sim_throughput.py --device cpu --sizes 4096 --modes eager --options imu,camera64,movers4
     python bench/sim_throughput.py --device cpu --threads 1 --cpu-time --sizes 4096 --modes compiled --options pedestrians4
+    python bench/sim_throughput.py --device cpu --threads 1 --cpu-time --sizes 64,128,256,512,1024,2048,4096 --modes eager,eager-unrolled,eager-batched
 
 ``--options`` adds rows of the same load with one simulator option switched on
 (``OPTIONS``: the IMU, the camera's depth row, moving discs and boxes), each next to the plain
@@ -68,7 +71,7 @@ from torchnav.sim import (  # noqa: E402
 )
 from torchnav.sim.step import step_odometry  # noqa: E402
 
-ALL_MODES = ("eager", "eager-batched", "compiled", "compiled-batched", "cudagraphs")
+ALL_MODES = ("eager", "eager-batched", "eager-unrolled", "compiled", "compiled-batched", "cudagraphs")
 DEFAULT_MODES = ("eager", "eager-batched", "compiled", "compiled-batched", "cudagraphs")
 DEFAULT_SIZES = (1, 64, 1024, 4096, 16384)
 QUICK_SIZES = (1, 64, 256)
@@ -155,12 +158,10 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
 
 
 def step_fn(mode: str, params: SimParams, dynamic: bool, env_params: EnvParams | None = None) -> Callable[[SimState, torch.Tensor, World], SimState]:
-    batched = mode.endswith("-batched")
+    unroll = {"-batched": False, "-unrolled": True}.get(mode[mode.rfind("-"):]) if "-" in mode else None
 
     def fn(state: SimState, action: torch.Tensor, world: World) -> SimState:
-        if batched:
-            return step(state, action, world, params, unroll=False, env_params=env_params)
-        return step(state, action, world, params, env_params=env_params)
+        return step(state, action, world, params, unroll=unroll, env_params=env_params)
 
     if mode.startswith("eager"):
         return fn

@@ -34,7 +34,7 @@ def _positive(x) -> bool:
 def test_bench_scripts_quick_json():
     cmds = {
         "sim": [sys.executable, str(ROOT / "bench" / "sim_throughput.py"), "--quick", "--json", "--device", "cpu", "--threads", "1", "--sizes", "1,64",
-                "--options", "imu,camera16,movers4", "--cpu-time"],
+                "--modes", "eager,eager-batched,eager-unrolled", "--options", "imu,camera16,movers4", "--cpu-time"],
         "env": [sys.executable, str(ROOT / "bench" / "env_throughput.py"), "--quick", "--json", "--threads", "1", "--num-envs", "32"],
     }
     procs = {k: subprocess.Popen(c, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k, c in cmds.items()}
@@ -47,7 +47,7 @@ def test_bench_scripts_quick_json():
     sim, sim_log = out["sim"]
     rows = [r for r in sim if r.get("bench") == "sim_throughput"]
     assert {(r["num_envs"], r["mode"], r["option"]) for r in rows} == {
-        (n, m, o) for n in (1, 64) for m in ("eager", "eager-batched") for o in ("plain", "imu", "camera16", "movers4")}
+        (n, m, o) for n in (1, 64) for m in ("eager", "eager-batched", "eager-unrolled") for o in ("plain", "imu", "camera16", "movers4")}
     for r in rows:
         assert SIM_KEYS <= r.keys(), SIM_KEYS - r.keys()
         assert "error" not in r, r["error"]
