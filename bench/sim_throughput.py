@@ -158,7 +158,7 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
 
 
 def step_fn(mode: str, params: SimParams, dynamic: bool, env_params: EnvParams | None = None) -> Callable[[SimState, torch.Tensor, World], SimState]:
-    unroll = {"-batched": False, "-unrolled": True}.get(mode[mode.rfind("-"):]) if "-" in mode else None
+    unroll = {"eager-batched": False, "compiled-batched": False, "eager-unrolled": True}.get(mode)  # None: the rule's choice
 
     def fn(state: SimState, action: torch.Tensor, world: World) -> SimState:
         return step(state, action, world, params, unroll=unroll, env_params=env_params)
