@@ -97,3 +97,15 @@ def test_compiled_options_compile_once_each():
     rows = [r for r in rows if r.get("bench") == "sim_throughput"]
     assert [r["option"] for r in rows] == ["plain", "imu", "movers4"] and not [r for r in rows if r.get("error")]
     assert counters["frames"]["ok"] == 3, dict(counters["frames"])
+
+
+def test_worlds_bench_json_and_bad_difficulty():
+    cmd = [sys.executable, str(ROOT / "bench" / "worlds.py"), "--num-envs", "8", "--families", "forest,open", "--difficulties", "0.5,mixed",
+           "--guide-cells", "16", "--cpu-time", "--repeats", "1", "--json"]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=180)
+    assert p.returncode == 0, p.stderr[-3000:]
+    rows = [r for r in _json_lines(p.stdout) if r.get("bench") == "worlds"]
+    assert {(r["family"], r["difficulty"]) for r in rows} == {(f, d) for f in ("forest", "open") for d in ("0.5", "mixed")}
+    assert all(r["guide_cells"] == 16 and r["clock"] == "cpu" and _positive(r["envs_per_s"]) for r in rows)
+    bad = subprocess.run(cmd[:2] + ["--difficulties", "0.5,hard"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "hard" in bad.stderr

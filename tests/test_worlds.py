@@ -292,6 +292,23 @@ def test_wavefront_equals_dijkstra_on_random_grids():
     assert (got[~free] == UNREACHED).all()
 
 
+def test_wavefront_is_exact_when_envs_settle_at_different_passes():
+    # Open grids settle after two passes; a serpentine needs a pass per turn, so the sweep drops
+    # the settled envs part-way (wavefront.SETTLED_SHARE) and must keep their results.
+    h, w = 21, 30
+    free = torch.ones(6, h, w, dtype=torch.bool)
+    for row in range(2, h - 1, 4):  # walls across the serpentine env, open at alternating ends
+        free[4, row, 1:] = False
+        free[4, row + 2, :-1] = False
+    free[5, 7:9, 3:25] = False  # one obstacle: a few passes
+    source = torch.tensor([0, 5 * w + 7, h * w - 1, 17, 0, 10 * w + 2])
+    got = geodesic_distance(free, source)
+    for e in range(6):
+        assert np.array_equal(got[e].numpy(), dijkstra(free[e].numpy(), int(source[e]))), e
+        assert torch.equal(got[e], geodesic_distance(free[e : e + 1], source[e : e + 1])[0]), e
+    assert got[4][free[4]].max() < UNREACHED and got[4, h - 1, w - 1] > 5 * ORTHO * w  # the serpentine is one long path
+
+
 def test_clearance_grid_is_exact_below_reach_and_above_it_elsewhere():
     # walls, circles and rotated boxes of two maps of different sizes in one batch
     world = cat_worlds([load_map("street").build_world(1), load_map("warehouse").build_world(1)])

@@ -56,17 +56,25 @@ def _run_bases(free: Tensor, cut: Tensor, cost: int) -> tuple[Tensor, Tensor]:
     return run_f * _BIG + p, run_b * _BIG - p
 
 
-def _running_min_(x: Tensor, backwards: bool) -> Tensor:
-    """In-place running minimum along dim 1 (a log-step scan: several times faster than
-    ``torch.cummin`` on CPU, which also computes indices)."""
-    step = 1
-    while step < x.shape[1]:
+def _running_min(x: Tensor, spare: Tensor, backwards: bool) -> tuple[Tensor, Tensor]:
+    """Running minimum along dim 1 of ``x`` (a log-step scan: several times faster than
+    ``torch.cummin`` on CPU, which also computes indices). Each step writes into the other
+    buffer, ``spare`` (same shape), with ``out=``, so no step allocates or copies a whole tensor.
+    Returns ``(result, spare)``: which of the two buffers holds the result depends on the steps."""
+    step, m = 1, x.shape[1]
+    while step < m:
         if backwards:
-            x[:, :-step] = torch.minimum(x[:, :-step], x[:, step:])
+            torch.minimum(x[:, :-step], x[:, step:], out=spare[:, :-step])
+            spare[:, m - step :] = x[:, m - step :]
         else:
-            x[:, step:] = torch.minimum(x[:, step:], x[:, :-step])
+            torch.minimum(x[:, step:], x[:, :-step], out=spare[:, step:])
+            spare[:, :step] = x[:, :step]
+        x, spare = spare, x
         step *= 2
-    return x
+    return x, spare
+
+
+SETTLED_SHARE = 0.5  # the envs still being swept are compacted once this share of them has settled
 
 
 def propagate(value: Tensor, free: Tensor, cost_scale: int = 1) -> Tensor:
@@ -84,7 +92,11 @@ def propagate(value: Tensor, free: Tensor, cost_scale: int = 1) -> Tensor:
     # Cells first, envs last: gathering a line copies whole rows of envs at once.
     free_t = free.reshape(b, -1).T
     cur = torch.where(free_t, value.reshape(b, -1).T.clamp(max=UNREACHED), UNREACHED).int().contiguous()
-    bases = [_run_bases(free_t[index], cut, cost_scale * cost) for index, cut, cost in tables]
+    # Per table: the forward run bases, the shift from the forward to the backward keys, the backward bases.
+    bases = []
+    for index, cut, cost in tables:
+        fwd, bwd = _run_bases(free_t[index], cut, cost_scale * cost)
+        bases.append((fwd, fwd - bwd, bwd))
     # Each table is a permutation of the cells: gathering by its inverse writes a line layout back
     # (index_select is several times faster than an index_put here).
     perms = [(index.reshape(-1), torch.argsort(index.reshape(-1))) for index, _, _ in tables]
@@ -92,18 +104,25 @@ def propagate(value: Tensor, free: Tensor, cost_scale: int = 1) -> Tensor:
     cols = torch.arange(b, device=free.device)  # the envs still being swept, into the full batch
     while True:
         before = cur
-        for (index, _, _), (fwd, bwd), (order, inverse) in zip(tables, bases, perms):
+        for (index, _, _), (fwd, shift, bwd), (order, inverse) in zip(tables, bases, perms):
             v = cur.index_select(0, order).reshape(*index.shape, -1)  # (L, M, B)
-            v = torch.minimum(v, _running_min_(v - fwd, backwards=False) + fwd)
-            v = torch.minimum(v, _running_min_(v - bwd, backwards=True) + bwd)
+            # A running minimum includes the cell itself, so min(v, scan) is the scan: keys in place.
+            v -= fwd
+            v, spare = _running_min(v, torch.empty_like(v), backwards=False)
+            v += shift
+            v, _ = _running_min(v, spare, backwards=True)
+            v += bwd
             cur = v.reshape(-1, v.shape[-1]).index_select(0, inverse)
         moving = (cur != before).any(0)
-        if not moving.all():  # the settled envs are done: keep their result, sweep only the others
+        if not moving.any():
+            out[:, cols] = cur
+            break
+        # A pass that changes nothing in an env changes nothing there again: once enough envs have
+        # settled, keep their result and sweep only the others (compacting copies every table's bases).
+        if (~moving).sum() >= SETTLED_SHARE * moving.numel():
             out[:, cols[~moving]] = cur[:, ~moving]
-            if not moving.any():
-                break
             keep = lambda t: t[..., moving].contiguous()  # noqa: E731
-            cols, cur, bases = cols[moving], keep(cur), [(keep(f), keep(r)) for f, r in bases]
+            cols, cur, bases = cols[moving], keep(cur), [tuple(keep(t) for t in table) for table in bases]
     return out.T.reshape(b, h, w)
 
 
