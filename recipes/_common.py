@@ -140,7 +140,7 @@ class ThreadGovernor:
     run took 164 s next to one busy process instead of 49 s; with one thread, 60 s;
     docs/performance.md#contention). ``threads: auto`` therefore measures, over each
     ``interval`` s, the CPU time of the whole machine (``/proc/stat``) less this
-    process's own (``os.times``), and sets as many threads as cores are left free:
+    process's own and its finished children's (``os.times``), and sets as many threads as cores are left free:
     at least 1, at most the cores this process may use. A fixed ``threads: N`` sets N
     once and never changes it; so does ``auto`` where ``/proc/stat`` is missing or
     counts other cores than this process may use (not Linux, some containers).
@@ -169,13 +169,14 @@ class ThreadGovernor:
             return -1
 
     def _sample(self) -> tuple[float, float, float]:
-        """(wall s, busy CPU s of the machine, CPU s of this process)."""
+        """(wall s, busy CPU s of the machine, CPU s of this process and of its finished children: the
+        C++ compilers that ``torch.compile`` runs are this run's work, not another process's)."""
         f = [int(x) for x in self.STAT.read_text().split("\n", 1)[0].split()[1:]]
         busy = sum(f) - f[3] - (f[4] if len(f) > 4 else 0)  # all but idle and iowait; guest time is inside user
         if len(f) > 8:
             busy -= sum(f[8:10])
         t = os.times()
-        return time.monotonic(), busy / os.sysconf("SC_CLK_TCK"), t.user + t.system
+        return time.monotonic(), busy / os.sysconf("SC_CLK_TCK"), t.user + t.system + t.children_user + t.children_system
 
     def others(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
         """Cores used by other processes between samples ``a`` and ``b``."""
