@@ -27,17 +27,24 @@ def test_fixed_and_invalid_settings():
         torch.set_num_threads(before)
 
 
+def _auto_governor_on_an_idle_machine() -> C.ThreadGovernor:
+    """An ``auto`` governor, or a skip where the machine cannot show what it does (one core, a
+    container whose /proc/stat counts other cores, or other processes already busy)."""
+    g = C.ThreadGovernor("auto", interval=0.5)
+    if not g.auto or g.cores < 2:
+        pytest.skip("needs 2 or more cores counted alike by /proc/stat and the affinity mask")
+    mark = g._sample()
+    time.sleep(1.0)
+    if g.others(mark, g._sample()) > 0.3:  # the governor would rightly keep a core free for that work
+        pytest.skip("other processes already keep a core busy: the test needs a machine this test has to itself")
+    return g
+
+
 @needs_proc_stat
 def test_auto_gives_a_core_to_a_busy_process_and_takes_it_back():
     before = torch.get_num_threads()
     try:
-        g = C.ThreadGovernor("auto", interval=0.5)
-        if not g.auto or g.cores < 2:
-            pytest.skip("needs 2 or more cores counted alike by /proc/stat and the affinity mask")
-        mark = g._sample()
-        time.sleep(1.0)
-        if g.others(mark, g._sample()) > 0.3:  # the governor would rightly keep a core free for that work
-            pytest.skip("other processes already keep a core busy: the test needs a machine this test has to itself")
+        g = _auto_governor_on_an_idle_machine()
         others = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(g.cores - 1)]
         try:
             time.sleep(1.5)  # let them start
@@ -74,13 +81,7 @@ def test_auto_counts_its_own_finished_children_as_its_own_work():
     # compile must not make the governor give a core away.
     before = torch.get_num_threads()
     try:
-        g = C.ThreadGovernor("auto", interval=0.5)
-        if not g.auto or g.cores < 2:
-            pytest.skip("needs 2 or more cores counted alike by /proc/stat and the affinity mask")
-        mark = g._sample()
-        time.sleep(1.0)
-        if g.others(mark, g._sample()) > 0.3:
-            pytest.skip("other processes already keep a core busy: the test needs a machine this test has to itself")
+        g = _auto_governor_on_an_idle_machine()
         g._mark = g._sample()
         subprocess.run([sys.executable, "-c", "import time\nt = time.process_time()\nwhile time.process_time() - t < 1.0: pass"], check=True)
         now = g._sample()
