@@ -41,6 +41,10 @@ def main() -> None:
     ap.add_argument("--cpu-time", action="store_true", help="time the process's CPU time instead of the wall clock")
     ap.add_argument("--json", action="store_true", help="print one JSON line per row instead of a table")
     args = ap.parse_args()
+    labels = args.difficulties.split(",")
+    bad = [x for x in labels if x != "mixed" and not (x.replace(".", "", 1).isdigit() and 0 <= float(x) <= 1)]
+    if bad:
+        ap.error(f"--difficulties: {bad} are neither numbers in [0, 1] nor 'mixed'")
     common.set_threads(args.threads)
     info = common.machine_info(args.device)
     if not args.json:
@@ -49,10 +53,6 @@ def main() -> None:
         if warning:
             print(warning)
         print(f"{'family':10s} {'difficulty':>10s} {'s/call':>8s} {'envs/s':>8s}")
-    labels = args.difficulties.split(",")
-    bad = [x for x in labels if x != "mixed" and not (x.replace(".", "", 1).isdigit() and 0 <= float(x) <= 1)]
-    if bad:
-        ap.error(f"--difficulties: {bad} are neither numbers in [0, 1] nor 'mixed'")
     clock = time.process_time if args.cpu_time else time.perf_counter
     for family in args.families.split(","):
         for label in labels:
