@@ -418,3 +418,16 @@ def test_recipe_on_cuda(tmp_path, recipe):
     sp = load_policy(run / "actor.pt")
     out = sp.actor(torch.zeros(3, sp.actor.obs_size))  # the saved weights load and run on the CPU
     assert out.device.type == "cpu" and torch.isfinite(out).all()
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_generalist_recipe_on_cuda(tmp_path):
+    """The generalist config on a GPU: procedural worlds, their goal grids and the geodesic reward,
+    the sector scan and the compiled step, all on the device."""
+    run = tmp_path / "run"
+    res = _run("ppo_lidar", ["--config", "recipes/configs/ppo_generalist.yaml"] + TINY_ARGS["ppo_lidar"]
+               + ["device=cuda", "task.reset.pool=64", "train.total_frames=512", f"logger.run_dir={run}"])
+    assert res["frames"] == 512
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["eval"]["episodes"] == 16

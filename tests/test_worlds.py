@@ -14,7 +14,7 @@ import torch
 from torchnav.controllers.planning import Obstacles, OccupancyGrid, plan_astar
 from torchnav.maps import load_map
 from torchnav.sim import World, cat_worlds, check_world, points_clearance
-from torchnav.worlds import FAMILIES, cat_batches, goal_band, make_worlds, mix_worlds, slot_counts
+from torchnav.worlds import FAMILIES, cat_batches, goal_band, goal_distance, goal_distance_grid, make_worlds, mix_worlds, slot_counts
 from torchnav.worlds import cave, corridors, forest, open_space, rooms
 from torchnav.worlds.raster import clearance_grid
 from torchnav.worlds.wavefront import DIAG, ORTHO, UNREACHED, geodesic_distance
@@ -307,6 +307,28 @@ def test_wavefront_is_exact_when_envs_settle_at_different_passes():
         assert np.array_equal(got[e].numpy(), dijkstra(free[e].numpy(), int(source[e]))), e
         assert torch.equal(got[e], geodesic_distance(free[e : e + 1], source[e : e + 1])[0]), e
     assert got[4][free[4]].max() < UNREACHED and got[4, h - 1, w - 1] > 5 * ORTHO * w  # the serpentine is one long path
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_wavefront_goal_grids_and_generation_on_cuda():
+    """The wavefront is integer arithmetic: the GPU's distances equal the CPU's bit for bit. Goal
+    grids of the same worlds equal the CPU's but where a clearance rounds differently; and
+    generation with a GPU generator gives reachable episodes with a known path distance."""
+    g = gen(4)
+    free = torch.rand(6, 40, 57, generator=g) > 0.3
+    free[5, 20, :] = True
+    source = torch.where(free.reshape(6, -1), torch.rand(6, 40 * 57, generator=g), -1.0).argmax(1)
+    assert torch.equal(geodesic_distance(free.cuda(), source.cuda()).cpu(), geodesic_distance(free, source))
+    batch = make_worlds("rooms", 16, 0.7, gen(3))
+    field, frame = goal_distance_grid(batch.world.to("cuda"), batch.bounds.cuda(), batch.goal.cuda())
+    cpu_field, cpu_frame = goal_distance_grid(batch.world, batch.bounds, batch.goal)
+    assert field.is_cuda and torch.allclose(frame.cpu(), cpu_frame)
+    assert (field.cpu() == cpu_field).float().mean() > 0.99
+    gpu = mix_worlds(64, {"rooms": 1.0, "corridors": 1.0, "forest": 1.0}, 0.6, torch.Generator("cuda").manual_seed(0), guide_cells=64)
+    assert gpu.start.is_cuda and gpu.goal_field.is_cuda
+    d = goal_distance(gpu.goal_field, gpu.goal_frame, gpu.goal, gpu.start[:, :2])
+    assert torch.isfinite(d).all() and (d >= (gpu.goal - gpu.start[:, :2]).norm(dim=-1) - 0.05).all()
 
 
 def test_clearance_grid_is_exact_below_reach_and_above_it_elsewhere():
