@@ -9,7 +9,11 @@ Loads (per env, random and different in every env; one robot, random twists):
                     sectors over 360 degrees, 10 m range;
 * ``dense-rays``    the same worlds, 180 rays over 360 degrees (2-degree spacing);
 * ``dense-brute``   dense-rays with the broad phase off (every ray against every
-                    obstacle), as every version before the broad phase ran it.
+                    obstacle), as every version before the broad phase ran it;
+* ``generalist``    what ``recipes/configs/ppo_generalist.yaml`` steps: its six world
+                    families at the curriculum's top difficulty, each world padded to
+                    the mixture's slots (84 walls, 70 circles, 48 boxes), its sector scan
+                    (20 sectors, 360 degrees) and robot, from the task's own first episodes.
 
 Each load runs ``torchnav.sim.step`` eager and compiled (``torch.compile``); compile
 time is excluded from the rates. The table ends with the ratios measured in this
@@ -20,6 +24,7 @@ gives exactly (``scan_is_exact``, after the timed steps).
     python bench/dense_lidar.py                  # 4,096 envs, eager and compiled
     python bench/dense_lidar.py --quick          # a seconds-long smoke run (64 envs, eager)
     python bench/dense_lidar.py --num-envs 1024 --modes compiled --json
+    python bench/dense_lidar.py --loads generalist --num-envs 2048 --modes compiled   # the generalist recipe's step
     python bench/dense_lidar.py --threads 1 --cpu-time --loads standard,dense-sectors --modes compiled   # a shared machine
 """
 
@@ -50,7 +55,9 @@ LOADS = {
     "dense-sectors": LidarParams(n_rays=20, fov=2 * math.pi, max_range=10.0, scan="sectors", window=0, dense_slots=16),
     "dense-rays": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0, window=2, dense_slots=16),
     "dense-brute": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0, dense_slots=10**9),
+    "generalist": None,  # the recipe config's own lidar (make_generalist)
 }
+GENERALIST_CONFIG = Path(__file__).resolve().parent.parent / "recipes" / "configs" / "ppo_generalist.yaml"
 TARGET_DENSE = 250_000  # env-steps/s at 4,096 envs, compiled, 2 CPU threads
 TARGET_RATIO = 10.0  # the dense load within 10x of the standard load
 
@@ -79,9 +86,36 @@ def make_dense(num_envs: int, params: SimParams, seed: int = 0) -> tuple[Any, Wo
     return init_state(pose, world, params), planar_world(world), actions
 
 
+def make_generalist(num_envs: int, seed: int = 0) -> tuple[SimParams, Any, World, list[torch.Tensor]]:
+    """The generalist recipe's simulator parameters, the first episodes of its task (every
+    family at ``worlds.max_difficulty``; straight-line progress, so no goal grids are made)
+    and a few batches of random twists."""
+    import yaml
+
+    from torchnav.tasks import NavConfig
+    from torchnav.tasks.curriculum import CurriculumState
+    from torchnav.tasks.navigation import NavTask
+
+    raw = yaml.safe_load(GENERALIST_CONFIG.read_text())["task"]
+    raw["worlds"]["difficulty"] = raw["worlds"]["max_difficulty"]
+    raw["reward"]["progress_distance"] = "euclidean"
+    cfg = NavConfig.from_dict(raw)
+    task = NavTask(cfg, num_envs)
+    g = torch.Generator().manual_seed(seed)
+    state, _ = task.initial_state(CurriculumState.initial(cfg.curriculum, worlds=cfg.worlds), g)
+
+    def u(lo: float, hi: float, *shape: int) -> torch.Tensor:
+        return lo + (hi - lo) * torch.rand(*shape, generator=g)
+
+    return task.params, state.sim, planar_world(state.world), common.random_twists(task.params, u, num_envs)
+
+
 def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) -> dict[str, Any]:
-    params = replace(SimParams(), lidar=LOADS[load])
-    state, world, actions = make_load(num_envs, "cpu", args.seed, params) if load == "standard" else make_dense(num_envs, params, args.seed)
+    if load == "generalist":
+        params, state, world, actions = make_generalist(num_envs, args.seed)
+    else:
+        params = replace(SimParams(), lidar=LOADS[load])
+        state, world, actions = make_load(num_envs, "cpu", args.seed, params) if load == "standard" else make_dense(num_envs, params, args.seed)
     rec: dict[str, Any] = {"bench": "dense_lidar", "load": load, "mode": mode, "num_envs": num_envs, "obstacles": int(world.segment_mask[0].sum() + world.circle_mask[0].sum() + world.box_mask[0].sum()),
                            "readings": params.lidar.n_rays, "scan": params.lidar.scan, "compile_s": None,
                            "threads": torch.get_num_threads(), "clock": "cpu" if args.cpu_time else "wall"}
@@ -115,7 +149,8 @@ def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) ->
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--num-envs", type=int, default=4096)
-    p.add_argument("--loads", type=lambda s: s.split(","), default=list(LOADS), help=f"comma-separated, from {','.join(LOADS)}")
+    p.add_argument("--loads", type=lambda s: s.split(","), default=[x for x in LOADS if x != "generalist"],
+                   help=f"comma-separated, from {','.join(LOADS)} (default: all but generalist)")
     p.add_argument("--modes", type=lambda s: s.split(","), default=["eager", "compiled"], help="eager, compiled")
     common.timing_args(p, run_seconds=1.0, warmup=3)
     p.add_argument("--seed", type=int, default=0)

@@ -81,6 +81,16 @@ def test_dense_lidar_quick_json():
     assert "standard / dense-sectors" in p.stderr  # the ratios went to stderr
 
 
+def test_dense_lidar_generalist_load():
+    """The generalist recipe's step: its worlds padded to the mixture's slots, its sector scan."""
+    cmd = [sys.executable, str(ROOT / "bench" / "dense_lidar.py"), "--quick", "--json", "--threads", "1", "--loads", "generalist"]
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    (row,) = _json_lines(p.stdout)
+    assert row["load"] == "generalist" and row["scan"] == "sectors" and row["readings"] == 20
+    assert 0 < row["obstacles"] <= 84 + 70 + 48 and _positive(row["env_steps_per_s"]) and row["exact_envs_frac"] == 1.0
+
+
 @pytest.mark.slow
 def test_compiled_options_compile_once_each():
     """Each option's compiled step is compiled once, before the timed runs: none recompiles inside them

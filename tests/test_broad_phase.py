@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from torchnav.sim import LidarParams, World, lidar_scan, scan_is_exact
+from torchnav.sim.raycast import BROAD_PHASE_RATIO
 
 F64 = torch.float64
 BRUTE = 10**9  # dense_slots large enough that every slot is tested on every ray
@@ -83,6 +84,11 @@ def test_scan_is_exact_flags_an_overflowing_env():
     roomy = replace(lidar, dense_slots=20)
     assert scan_is_exact(pose, world, roomy).all()
     torch.testing.assert_close(lidar_scan(pose, world, roomy), lidar_scan(pose, world, replace(lidar, dense_slots=BRUTE)), atol=1e-12, rtol=0)
+    # At most BROAD_PHASE_RATIO times dense_slots slots of a kind: no broad phase, every ray tests
+    # every slot, exact although env 0 has more wide posts (20) than dense_slots (15).
+    assert 30 <= BROAD_PHASE_RATIO * 15
+    assert scan_is_exact(pose, world, replace(lidar, dense_slots=15)).all()
+    torch.testing.assert_close(lidar_scan(pose, world, replace(lidar, dense_slots=15)), lidar_scan(pose, world, replace(lidar, dense_slots=BRUTE)), atol=1e-12, rtol=0)
 
 
 def _padded(special: list[list[float]], tiny, n: int = 40) -> torch.Tensor:

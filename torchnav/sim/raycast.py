@@ -17,7 +17,8 @@ at least ``EAGER_UNROLL_MIN_RAYS`` rays (below that, launches cost more than the
 ``(B, R, N)`` temporaries). Otherwise it is batched.
 
 For worlds with many obstacles, :func:`cast_fan` adds a broad phase for evenly
-spaced rays (a lidar fan): an obstacle can only be hit by the rays that pass
+spaced rays (a lidar fan), to kinds with more than ``BROAD_PHASE_RATIO * dense_slots``
+slots (below that its selection costs more than the tests it saves): an obstacle can only be hit by the rays that pass
 through its bounding circle, which from the sensor spans ``phi +- asin(rho/D)``.
 Each obstacle is tested on the ``2 * window + 1`` rays nearest its direction, and
 the results are scattered into the scan by a minimum. Obstacles that look too wide
@@ -46,6 +47,12 @@ _TINY = 1e-12
 # A ray whose cross product with a wall is below this many float epsilons times the
 # wall's length is parallel to it (rounding alone makes |d x e| that large).
 _PARALLEL_EPS = 8.0
+# The broad phase runs for a kind with more than this many times ``dense_slots`` slots. Closer
+# to ``dense_slots`` it saves few tests and its selection (wide test, running count, search,
+# gather, window hits) costs more: the generalist's padded mixture (84 wall, 70 circle slots,
+# 20 sector boundaries, dense_slots 64) stepped in 43 ms with it and 29 ms without (2,048 envs,
+# compiled, 2 CPU threads; docs/performance.md).
+BROAD_PHASE_RATIO = 2
 
 
 def hit_segment(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, seg: Tensor, mask: Tensor) -> Tensor:
@@ -252,9 +259,9 @@ def _centre_index(fan: RayFan, key: str, obs: Tensor) -> Tensor:
 def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, unroll: bool | None = None) -> Tensor:
     """Nearest hit distance ``(B, n)`` along every ray of ``fan``, ``inf`` on a miss.
 
-    Kinds with at most ``dense_slots`` slots are tested against every ray; larger ones
-    go through the angular broad phase (module docstring). ``unroll`` picks the
-    reduction of the every-ray tests.
+    Kinds with at most ``BROAD_PHASE_RATIO * dense_slots`` slots are tested against every
+    ray; larger ones go through the angular broad phase (module docstring). ``unroll``
+    picks the reduction of the every-ray tests.
     """
     dx, dy = torch.cos(fan.angles), torch.sin(fan.angles)
     ox, oy = fan.origin[:, 0:1], fan.origin[:, 1:2]
@@ -265,7 +272,7 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
         n_slots, width = obs.shape[1], obs.shape[-1]
         if n_slots == 0:
             continue
-        if n_slots <= dense_slots:
+        if not _broad_phase(n_slots, dense_slots):
             best = torch.minimum(best, _cast_all(ox, oy, dx, dy, obs, mask, fn, rows, unroll))
             continue
         with torch.no_grad():
@@ -289,6 +296,11 @@ def cast_fan(fan: RayFan, world: World, window: int = 2, dense_slots: int = 64, 
     return best
 
 
+def _broad_phase(n_slots: int, dense_slots: int) -> bool:
+    """Whether :func:`cast_fan` uses the broad phase for a kind of ``n_slots`` slots."""
+    return n_slots > BROAD_PHASE_RATIO * dense_slots
+
+
 def _first_wide(wide: Tensor, k: int) -> tuple[Tensor, Tensor]:
     """Slot indices ``(B, k)`` of the first ``k`` nonzero entries of ``wide`` ``(B, N)`` (int64, 0 or 1)
     per row, and which of them are real (rows with fewer than ``k`` fill with the last slot, marked False).
@@ -309,6 +321,6 @@ def fan_is_exact(fan: RayFan, world: World, window: int = 2, dense_slots: int = 
     ok = torch.ones(fan.origin.shape[0], dtype=torch.bool, device=fan.origin.device)
     for key, mkey, _, _ in KINDS:
         obs, mask = getattr(world, key), getattr(world, mkey)
-        if obs.shape[1] > dense_slots:
+        if _broad_phase(obs.shape[1], dense_slots):
             ok &= _wide(fan, key, obs.detach(), mask, window).sum(1) <= dense_slots
     return ok
