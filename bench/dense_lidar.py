@@ -12,7 +12,7 @@ Loads (per env, random and different in every env; one robot, random twists):
                     obstacle), as every version before the broad phase ran it;
 * ``generalist``    what ``recipes/configs/ppo_generalist.yaml`` steps: its six world
                     families at the curriculum's top difficulty, each world padded to
-                    the mixture's slots (84 walls, 70 circles, 48 boxes), its sector scan
+                    the mixture's slots (68 walls, 70 circles, 48 boxes), its sector scan
                     (20 sectors, 360 degrees) and robot, from the task's own first episodes.
 
 Each load runs ``torchnav.sim.step`` eager and compiled (``torch.compile``); compile

@@ -279,6 +279,17 @@ def dijkstra(free: np.ndarray, source: int) -> np.ndarray:
     return dist.reshape(h, w)
 
 
+def test_corridor_slots_hold_every_closed_wall():
+    """A hard maze (9 x 9 cells, no loops) closes exactly (9 - 1)**2 wall pieces between cells:
+    the merged walls in its slots add up to that many corridor widths, so none was dropped."""
+    batch = make_worlds("corridors", 64, 1.0, gen(9))
+    w, width = batch.world, corridors.params(torch.ones(1))["corridor_width"]
+    inner, on = w.segments[:, 4:], w.segment_mask[:, 4:]
+    assert inner.shape[1] == corridors.MAX_SEGMENTS == 64
+    pieces = ((inner[..., 2:] - inner[..., :2]).norm(dim=-1) * on).sum(1) / width
+    torch.testing.assert_close(pieces, torch.full_like(pieces, 64.0), atol=1e-3, rtol=0)
+
+
 def test_wavefront_equals_dijkstra_on_random_grids():
     g = gen(4)
     free = torch.rand(5, 23, 37, generator=g) > 0.35

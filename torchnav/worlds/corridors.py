@@ -1,11 +1,11 @@
 """``corridors``: a random maze of corridors of one width (docs/worlds.md, "corridors").
 
-Slots (fixed for every difficulty): 4 boundary walls, then ``MAX_SEGMENTS`` merged walls (a grid
-line of ``MAX_CELLS`` units holds at most ``ceil(MAX_CELLS / 2)`` separate runs)."""
+Slots (fixed for every difficulty): 4 boundary walls, then ``MAX_SEGMENTS`` merged walls. An
+``n x n`` maze has ``2 n (n - 1)`` wall units between cells, and its spanning tree opens
+``n * n - 1`` of them, so at most ``(n - 1) ** 2`` stay closed (loops close none): at most that
+many merged walls."""
 
 from __future__ import annotations
-
-import math
 
 import torch
 from torch import Tensor
@@ -14,7 +14,7 @@ from ..sim import World
 from .layout import grid_edges, lerp, random_spanning_tree, runs, take_slots, uniform, walled_world
 
 MAX_CELLS = 9  # cells per side at difficulty 1
-MAX_SEGMENTS = 2 * (MAX_CELLS - 1) * math.ceil(MAX_CELLS / 2)  # merged interior walls, worst case
+MAX_SEGMENTS = (MAX_CELLS - 1) ** 2  # merged interior walls, worst case (module docstring)
 RESOLUTION = 0.1  # m, placement grid
 
 
