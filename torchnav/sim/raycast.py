@@ -49,8 +49,8 @@ _TINY = 1e-12
 _PARALLEL_EPS = 8.0
 # The broad phase runs for a kind with more than this many times ``dense_slots`` slots. Closer
 # to ``dense_slots`` it saves few tests and its selection (wide test, running count, search,
-# gather, window hits) costs more: the generalist's padded mixture (84 wall, 70 circle slots,
-# 20 sector boundaries, dense_slots 64) stepped in 43 ms with it and 29 ms without (2,048 envs,
+# gather, window hits) costs more: the generalist's padded mixture (then 84 wall, 70 circle slots,
+# 20 sector boundaries, dense_slots 64) stepped in 37-40 ms with it and 18-25 ms without (2,048 envs,
 # compiled, 2 CPU threads; docs/performance.md).
 BROAD_PHASE_RATIO = 2
 
