@@ -155,6 +155,7 @@ class ThreadGovernor:
         self.threads = self.cores if setting in ("auto", None) else int(setting)
         self.interval = float(interval)
         self.changes: list[tuple[float, int, float]] = []  # (time in the run s, threads, other processes' cores)
+        self.steal = 0.0  # cores' worth of hypervisor steal over the last interval (inside the others' cores)
         self._t0 = time.monotonic()
         if self.auto:
             self._mark = self._sample()
@@ -168,27 +169,35 @@ class ThreadGovernor:
         except OSError:
             return -1
 
-    def _sample(self) -> tuple[float, float, float]:
+    def _sample(self) -> tuple[float, float, float, float]:
         """(wall s, busy CPU s of the machine, CPU s of this process and of its finished children: the
-        C++ compilers that ``torch.compile`` runs are this run's work, not another process's)."""
+        C++ compilers that ``torch.compile`` runs are this run's work, not another process's; and the
+        machine's steal s, time a hypervisor gave this VM's cores to others, counted inside busy)."""
         f = [int(x) for x in self.STAT.read_text().split("\n", 1)[0].split()[1:]]
         busy = sum(f) - f[3] - (f[4] if len(f) > 4 else 0)  # all but idle and iowait; guest time is inside user
         if len(f) > 8:
             busy -= sum(f[8:10])
         t = os.times()
-        return time.monotonic(), busy / os.sysconf("SC_CLK_TCK"), t.user + t.system + t.children_user + t.children_system
+        tick = os.sysconf("SC_CLK_TCK")
+        steal = f[7] / tick if len(f) > 7 else 0.0
+        return time.monotonic(), busy / tick, t.user + t.system + t.children_user + t.children_system, steal
 
-    def others(self, a: tuple[float, float, float], b: tuple[float, float, float]) -> float:
-        """Cores used by other processes between samples ``a`` and ``b``."""
+    def others(self, a: tuple[float, ...], b: tuple[float, ...]) -> float:
+        """Cores used by other processes between samples ``a`` and ``b`` (hypervisor steal included)."""
         wall = max(b[0] - a[0], 1e-6)
         return max(0.0, ((b[1] - a[1]) - (b[2] - a[2])) / wall)
+
+    @staticmethod
+    def stolen(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+        """Cores' worth of hypervisor steal between samples ``a`` and ``b`` (part of :meth:`others`)."""
+        return max(0.0, (b[3] - a[3]) / max(b[0] - a[0], 1e-6))
 
     def update(self, force: bool = False) -> int | None:
         """Re-check (at most every ``interval`` s, any time with ``force``); returns the new thread count when it changed."""
         if not self.auto or (not force and time.monotonic() - self._mark[0] < self.interval):
             return None
         now = self._sample()
-        others = self.others(self._mark, now)
+        others, self.steal = self.others(self._mark, now), self.stolen(self._mark, now)
         self._mark = now
         want = max(1, min(self.cores, round(self.cores - others)))
         if want == self.threads and self.changes:  # the first look is always recorded

@@ -197,7 +197,8 @@ class Trainer:
                     if cfg.checkpoint.keep:
                         _keep(self.run / "checkpoint.pt", self.run / "checkpoints" / f"{int(c['frames'])}.pt")
                 if self.threads.update() is not None:
-                    bar.write(f"[threads] {self.threads.threads} (other processes use {self.threads.changes[-1][2]:.1f} of {self.threads.cores} cores)")
+                    steal = f", hypervisor steal {self.threads.steal:.1f} of it" if self.threads.steal >= 0.05 else ""
+                    bar.write(f"[threads] {self.threads.threads} (other processes use {self.threads.changes[-1][2]:.1f} of {self.threads.cores} cores{steal})")
                 if stop.stop:
                     break
                 t_mark = time.perf_counter()  # checkpoints and evaluation are not collection

@@ -90,3 +90,24 @@ def test_auto_counts_its_own_finished_children_as_its_own_work():
         assert g.threads == g.cores, g.changes
     finally:
         torch.set_num_threads(before)
+
+
+def test_steal_is_read_and_reported_as_part_of_the_others(tmp_path):
+    """Hypervisor steal (the 8th column of /proc/stat's cpu line) counts as busy time that is not this
+    process's; the governor reports its share, so a drop to fewer threads on an otherwise idle VM
+    can be told from another process."""
+    before = torch.get_num_threads()
+    try:
+        g = C.ThreadGovernor(1)
+        stat = tmp_path / "stat"
+        g.STAT = stat
+        tick = C.os.sysconf("SC_CLK_TCK")
+        stat.write_text("cpu  1000 0 100 5000 10 0 0 300 0 0\ncpu0 1 0 0 0 0 0 0 0 0 0\n")
+        a = g._sample()
+        stat.write_text(f"cpu  1000 0 100 5000 10 0 0 {300 + 2 * tick} 0 0\ncpu0 1 0 0 0 0 0 0 0 0 0\n")
+        b = g._sample()
+        assert a[3] == pytest.approx(300 / tick) and b[1] - a[1] == pytest.approx(2.0)  # steal is inside busy
+        late = (a[0] + 4.0, *b[1:])  # as if 4 s had passed: 2 s of steal is half a core, all of it "others"
+        assert g.stolen(a, late) == pytest.approx(0.5) and g.others(a, late) == pytest.approx(0.5, abs=0.05)
+    finally:
+        torch.set_num_threads(before)
