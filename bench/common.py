@@ -113,6 +113,15 @@ def timing_args(p, run_seconds: float, warmup: int = 5) -> None:
     p.add_argument("--warmup", type=int, default=warmup, help=f"untimed steps before timing (default {warmup})")
 
 
+def uniform_sampler(g: torch.Generator) -> Callable[..., torch.Tensor]:
+    """``u(lo, hi, *shape)``: uniform numbers in ``[lo, hi)`` of that shape, drawn from ``g``."""
+
+    def u(lo: float, hi: float, *shape: int) -> torch.Tensor:
+        return lo + (hi - lo) * torch.rand(*shape, generator=g)
+
+    return u
+
+
 def free_poses(world, radius: float, half: float, edge: float, u: Callable[..., torch.Tensor], tries: int = 200) -> torch.Tensor:
     """Poses ``(B, 3)`` in the free space of a ``[-half, half]^2`` arena, by rejection sampling all envs at
     once: more than ``radius + 0.05`` m from every obstacle and at most ``half - edge`` m from the centre

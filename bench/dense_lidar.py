@@ -69,10 +69,7 @@ def make_dense(num_envs: int, params: SimParams, seed: int = 0) -> tuple[Any, Wo
     as a caller stepping one world many times would; ``step`` then skips its copy."""
     g = torch.Generator().manual_seed(seed)
     b, h = num_envs, HALF
-
-    def u(lo: float, hi: float, *shape: int) -> torch.Tensor:
-        return lo + (hi - lo) * torch.rand(*shape, generator=g)
-
+    u = common.uniform_sampler(g)
     base = make_world(b, segments=[[-h, -h, h, -h], [h, -h, h, h], [h, h, -h, h], [-h, h, -h, -h]])
     posts = torch.stack((u(-h, h, b, N_POSTS), u(-h, h, b, N_POSTS), u(0.05, 0.3, b, N_POSTS)), -1)
     boxes = torch.stack((u(-h, h, b, N_BOXES), u(-h, h, b, N_BOXES), u(0.1, 0.4, b, N_BOXES), u(0.1, 0.4, b, N_BOXES), u(-math.pi, math.pi, b, N_BOXES)), -1)
@@ -103,11 +100,7 @@ def make_generalist(num_envs: int, seed: int = 0) -> tuple[SimParams, Any, World
     task = NavTask(cfg, num_envs)
     g = torch.Generator().manual_seed(seed)
     state, _ = task.initial_state(CurriculumState.initial(cfg.curriculum, worlds=cfg.worlds), g)
-
-    def u(lo: float, hi: float, *shape: int) -> torch.Tensor:
-        return lo + (hi - lo) * torch.rand(*shape, generator=g)
-
-    return task.params, state.sim, planar_world(state.world), common.random_twists(task.params, u, num_envs)
+    return task.params, state.sim, planar_world(state.world), common.random_twists(task.params, common.uniform_sampler(g), num_envs)
 
 
 def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) -> dict[str, Any]:

@@ -113,9 +113,7 @@ def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | Non
     params = params or bench_params()
     g = torch.Generator().manual_seed(seed)
     b = num_envs
-
-    def u(lo: float, hi: float, *shape: int) -> torch.Tensor:
-        return lo + (hi - lo) * torch.rand(*shape, generator=g)
+    u = common.uniform_sampler(g)
 
     h = ARENA_HALF
     walls = [[-h, -h, h, -h], [h, -h, h, h], [h, h, -h, h], [-h, h, -h, -h]]

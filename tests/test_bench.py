@@ -88,7 +88,7 @@ def test_dense_lidar_generalist_load():
     assert p.returncode == 0, p.stderr[-3000:]
     (row,) = _json_lines(p.stdout)
     assert row["load"] == "generalist" and row["scan"] == "sectors" and row["readings"] == 20
-    assert 0 < row["obstacles"] <= 84 + 70 + 48 and _positive(row["env_steps_per_s"]) and row["exact_envs_frac"] == 1.0
+    assert 0 < row["obstacles"] <= 68 + 70 + 48 and _positive(row["env_steps_per_s"]) and row["exact_envs_frac"] == 1.0
 
 
 @pytest.mark.slow
