@@ -182,15 +182,18 @@ class ThreadGovernor:
         steal = f[7] / tick if len(f) > 7 else 0.0
         return time.monotonic(), busy / tick, t.user + t.system + t.children_user + t.children_system, steal
 
+    @staticmethod
+    def _cores(a: tuple[float, ...], b: tuple[float, ...], cpu_s: float) -> float:
+        """``cpu_s`` CPU seconds spent between samples ``a`` and ``b`` as cores' worth (at least 0)."""
+        return max(0.0, cpu_s / max(b[0] - a[0], 1e-6))
+
     def others(self, a: tuple[float, ...], b: tuple[float, ...]) -> float:
         """Cores used by other processes between samples ``a`` and ``b`` (hypervisor steal included)."""
-        wall = max(b[0] - a[0], 1e-6)
-        return max(0.0, ((b[1] - a[1]) - (b[2] - a[2])) / wall)
+        return self._cores(a, b, (b[1] - a[1]) - (b[2] - a[2]))
 
-    @staticmethod
-    def stolen(a: tuple[float, ...], b: tuple[float, ...]) -> float:
+    def stolen(self, a: tuple[float, ...], b: tuple[float, ...]) -> float:
         """Cores' worth of hypervisor steal between samples ``a`` and ``b`` (part of :meth:`others`)."""
-        return max(0.0, (b[3] - a[3]) / max(b[0] - a[0], 1e-6))
+        return self._cores(a, b, b[3] - a[3])
 
     def update(self, force: bool = False) -> int | None:
         """Re-check (at most every ``interval`` s, any time with ``force``); returns the new thread count when it changed."""
