@@ -11,7 +11,7 @@ import pytest
 
 from torchnav.controllers import CONTROLLERS, make_controller
 from torchnav.envs import NavEnv
-from torchnav.evaluation import eval_config
+from torchnav.evaluation import eval_config, run_episodes
 from torchnav.policy import load_policy
 from torchnav.tasks import NavConfig
 
@@ -165,3 +165,22 @@ def test_paired_successes_is_the_exact_mcnemar_test():
     assert paired_successes([True, False, True, False], [False, True, False, True])["p"] == 1.0  # capped at 1
     with pytest.raises(ValueError, match="same episodes"):
         paired_successes([True], [True, False])
+
+
+def test_failure_paths_plays_the_benchmark_cells_episodes():
+    """docs/scripts/failure_paths.py keeps each episode's goal-distance grid to read the path
+    distance after every step; that must leave the cell's episodes as the benchmark plays them."""
+    sys.path.insert(0, str(ROOT / "docs" / "scripts"))
+    failure_paths = importlib.import_module("failure_paths")
+    ckpt = ROOT / "checkpoints" / "ppo_generalist_actor.pt"
+    outcomes, path, xy, steps = failure_paths.play(str(ckpt), "corridors", 0.5, 2170819, 12)
+    sp = load_policy(ckpt)
+    res = run_episodes(sp.policy, eval_config(sp.config(), worlds={"families": {"corridors": 1.0}, "difficulty": 0.5}), 12, seed=2170819)
+    want = "".join("S" if s else "C" if c else "T" for s, c in zip(res["success"].tolist(), res["collision"].tolist()))
+    assert outcomes == want
+    assert steps.tolist() == res["length"].long().tolist()
+    assert path.shape == (12, int(steps.max()) + 1) and xy.shape == (12, int(steps.max()), 2)
+    assert bool(path[:, 0].isfinite().all())  # every generated start has a known path to its goal
+    for i, o in enumerate(outcomes):
+        if o == "S":  # a success ends within the goal tolerance (0.3 m), read through the coarse grid (cells of 0.15-0.3 m here)
+            assert float(path[i, int(steps[i])]) < 0.3 + 0.25
