@@ -47,15 +47,15 @@ def play(checkpoint: str, family: str, difficulty: float, seed: int, episodes: i
     cfg = NavConfig.from_dict(merge(to_dict(cfg), {"reward": {"progress_distance": "geodesic"}}))
     env = NavEnv(cfg, num_envs=episodes, device="cpu", seed=seed)
     td = env.reset()
-    path, xy = [env._state.goal_path.clone()], []
+    path, xy = [env.state.goal_path.clone()], []
     steps = torch.zeros(episodes, dtype=torch.long)
     outcome = ["?"] * episodes
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for t in range(cfg.max_steps):
             td = env.step(sp.policy(td))
             nxt = td["next"]
-            path.append(env._state.goal_path.clone())
-            xy.append(env._state.sim.pose[:, :2].clone())
+            path.append(env.state.goal_path.clone())
+            xy.append(env.state.sim.pose[:, :2].clone())
             ended = nxt["done"].reshape(-1) & (steps == 0)
             for i in torch.nonzero(ended).flatten().tolist():
                 steps[i] = t + 1
