@@ -77,10 +77,15 @@ def gaussian_policy(loc_net: Actor | RecurrentActor, act_size: int, init_log_std
 
 @torch.no_grad()
 def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and standard deviation ``(obs_size,)`` of the observation under random actions for ``steps`` steps."""
+    """Mean and standard deviation ``(obs_size,)`` of the observation under random actions for ``steps``
+    steps; 0 and 1 for the features the task marks as already scaled (``task.unit_features``)."""
     td = env.rollout(steps, break_when_any_done=False)
     obs = td["observation"].reshape(-1, td["observation"].shape[-1]).double()
-    return obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
+    loc, scale = obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
+    unit = getattr(env.task, "unit_features", None)
+    if unit is not None:
+        loc, scale = loc.masked_fill(unit.to(loc.device), 0.0), scale.masked_fill(unit.to(loc.device), 1.0)
+    return loc, scale
 
 
 def main(argv: list[str], name: str = "ppo_lidar") -> dict:

@@ -38,7 +38,8 @@ TINY_ARGS = {
 
 # smoke-and-resume cases: a recipe's TINY_ARGS, or another setting of one (case -> (recipe, args))
 CASES = {**{r: (r, a) for r, a in TINY_ARGS.items()},
-         "ppo_lidar_gru": ("ppo_lidar", TINY_ARGS["ppo_lidar"] + ["train.recurrent=gru", "train.recurrent_hidden=16"])}
+         "ppo_lidar_gru": ("ppo_lidar", TINY_ARGS["ppo_lidar"] + ["train.recurrent=gru", "train.recurrent_hidden=16"]),
+         "ppo_lidar_visits": ("ppo_lidar", TINY_ARGS["ppo_lidar"] + ["task.observation.visit_sectors=4"])}
 
 
 def _run(recipe, args):
@@ -49,6 +50,18 @@ def _run(recipe, args):
 
 def _td3(args):
     return _run("td3_lidar", args)
+
+
+def test_observation_stats_leave_the_visit_memory_unscaled():
+    # random actions hardly leave the start: their spread of the visit memory would blow it up
+    from ppo_lidar import observation_stats
+
+    from torchnav.envs import make_nav_env
+
+    loc, scale = observation_stats(make_nav_env("arena", num_envs=8, observation={"visit_sectors": 4}), 4)
+    assert loc.shape == scale.shape == (28,)
+    assert torch.equal(loc[24:], torch.zeros(4)) and torch.equal(scale[24:], torch.ones(4))
+    assert (scale[:24] != 1).all()  # the rest are the rollout's statistics
 
 
 @pytest.mark.parametrize("case", sorted(CASES))

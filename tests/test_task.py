@@ -472,6 +472,70 @@ def test_goal_distance_cap_limits_only_the_observed_distance():
             make_task("arena", n=1, observation={"goal_distance_cap": bad})
 
 
+def test_visit_features_closed_form():
+    # Robot at the origin facing +y; breadcrumbs ahead (1 m), on the left (1 m), behind (1.5 m), one
+    # beyond the radius and one unused slot: sector k is centred on bearing 2 pi k / S, a breadcrumb
+    # weighs 1 - d / radius, a sector reads 1 - exp(-sum / 4).
+    from torchnav.tasks.navigation import FAR, visit_features
+
+    odom = torch.tensor([[0.0, 0.0, math.pi / 2]])
+    crumbs = torch.tensor([[[0.0, 1.0], [-1.0, 0.0], [0.0, -1.5], [0.1, 3.5], [FAR, FAR]]])
+    got = visit_features(odom, crumbs, 4, 3.0)
+    w = torch.tensor([[2 / 3, 2 / 3, 0.5, 0.0]])
+    torch.testing.assert_close(got, 1.0 - torch.exp(-w / 4.0))
+    # Two breadcrumbs in one sector add up; a bearing on a sector's edge goes to one of the two.
+    two = visit_features(odom, torch.tensor([[[0.0, 1.0], [0.2, 2.0]]]), 4, 3.0)
+    d2 = math.hypot(0.2, 2.0)
+    torch.testing.assert_close(two[0, 0], torch.tensor(1.0 - math.exp(-((2 / 3) + 1 - d2 / 3) / 4)))
+    assert (two[0, 1:] == 0).all()
+
+
+def test_drop_crumb_spacing_and_ring():
+    from torchnav.tasks.navigation import FAR, drop_crumb
+
+    k = 3
+    crumbs = torch.full((2, k, 2), FAR)
+    crumbs[:, 0] = 0.0
+    count = torch.ones(2, dtype=torch.int64)
+    # Env 0 drives 0.3 m steps along x, env 1 stands still: one breadcrumb per 0.5 m driven.
+    for i in range(1, 8):
+        crumbs, count = drop_crumb(crumbs, count, torch.tensor([[0.3 * i, 0.0, 0.0], [0.0, 0.0, 0.0]]), 0.5)
+    assert count.tolist() == [4, 1]
+    # Env 0 dropped at 0.6, 1.2 and 1.8 m; the fourth overwrote the oldest slot (the start).
+    torch.testing.assert_close(crumbs[0, :, 0], torch.tensor([1.8, 0.6, 1.2]))
+    assert torch.equal(crumbs[1, 0], torch.zeros(2)) and (crumbs[1, 1:] == FAR).all()
+
+
+def test_visit_memory_in_the_task_observation_and_resets():
+    from torchnav.config import ConfigError
+    from torchnav.tasks.navigation import visit_features
+
+    task = make_task("empty", n=3, observation={"visit_sectors": 8, "visit_memory": 16})
+    assert task.frame_size == 32 and task.obs_size == 32
+    assert task.unit_features.tolist() == [False] * 24 + [True] * 8
+    state, cur, gen = start(task, seed=1)
+    state = place(task, state, [[0.0, 0.0, 0.0]] * 3, [[9.0, 9.0]] * 3)
+    state.crumbs[:, 0] = 0.0
+    assert (state.crumb_count == 1).all() and state.crumbs.shape == (3, 16, 2)
+    a = torch.tensor([[0.9, 0.0], [0.9, 0.0], [-1.0, 0.0]])  # two drive straight at 0.95 m/s, one stands
+    for _ in range(22):
+        state, out = task.step(state, a, gen)
+    assert state.crumb_count.tolist() == [4, 4, 1]  # 2.09 m driven: breadcrumbs at 0, 0.57, 1.14, 1.71 m
+    torch.testing.assert_close(state.crumbs[0, :4, 0], torch.tensor([0.0, 0.57, 1.14, 1.71]), atol=1e-4, rtol=0)
+    obs = out["observation"][:, 24:]
+    torch.testing.assert_close(obs, visit_features(state.sim.odom, state.crumbs, 8, 3.0))
+    assert (obs[:2, 4] > 0.4).all() and (obs[:2, torch.arange(8) != 4] == 0).all()  # the trail lies behind
+    assert obs[2, 4] == 0 and obs[2].sum() > 0  # standing on the start breadcrumb
+    # A reset starts the memory again from the new start.
+    state, cur = task.reset(state, torch.tensor([True, False, False]), cur, gen)
+    assert state.crumb_count.tolist() == [1, 4, 1]
+    torch.testing.assert_close(state.crumbs[0, 0], state.sim.odom[0, :2])
+    with pytest.raises(ConfigError, match="visit_sectors"):
+        make_task("arena", n=1, observation={"visit_sectors": -1})
+    with pytest.raises(ConfigError, match="visit_spacing"):
+        make_task("arena", n=1, observation={"visit_sectors": 4, "visit_spacing": 0.0})
+
+
 def test_lidar_noise_changes_ranges_within_bounds():
     clean, noisy = make_task("arena", n=4), make_task("arena", n=4, lidar={"noise_std": 0.5})
     sc, _, gc = start(clean, seed=1)

@@ -131,6 +131,13 @@ class ObservationConfig:
     imu: bool = False  # append the IMU reading [a_x, a_y, yaw rate] (needs imu.enabled)
     camera: bool = False  # append the camera's depth row, n_cols values (needs camera.enabled)
     goal_distance_cap: float | None = None  # m: the goal distance observed is at most this (None: uncapped)
+    # Memory of where the robot has been (docs/tasks.md#visit-memory): every `visit_spacing` m driven
+    # (by odometry) the robot drops a breadcrumb; the observation gets, per egocentric sector, how many
+    # lie within `visit_radius` (nearer ones weigh more). 0 sectors: off.
+    visit_sectors: int = 0
+    visit_radius: float = 3.0  # m
+    visit_spacing: float = 0.5  # m between breadcrumbs
+    visit_memory: int = 64  # breadcrumbs kept; the oldest is overwritten
 
 
 @dataclass(frozen=True)
@@ -224,6 +231,9 @@ class NavConfig(TaskConfig):
             (self.observation.history >= 1, "observation.history must be >= 1"),
             (self.observation.goal_distance_cap is None or (math.isfinite(self.observation.goal_distance_cap) and self.observation.goal_distance_cap > 0),
              f"observation.goal_distance_cap must be null or a finite number of metres > 0, got {self.observation.goal_distance_cap}"),
+            (self.observation.visit_sectors >= 0, f"observation.visit_sectors must be >= 0, got {self.observation.visit_sectors}"),
+            (self.observation.visit_radius > 0 and self.observation.visit_spacing > 0 and self.observation.visit_memory >= 1,
+             "observation needs visit_radius > 0 m, visit_spacing > 0 m and visit_memory >= 1"),
             (not self.observation.imu or self.imu.enabled, "observation.imu needs imu.enabled: true"),
             (not self.observation.camera or self.camera.enabled, "observation.camera needs camera.enabled: true"),
             (self.reset.candidates >= 1, "reset.candidates must be >= 1"),

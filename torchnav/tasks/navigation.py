@@ -55,7 +55,9 @@ class NavTask(BatchedTask):
         self.n_sectors = cfg.lidar.n_sectors
         self.n_imu = 3 if cfg.observation.imu else 0
         self.n_depth = cfg.camera.n_cols if cfg.observation.camera else 0
-        self.frame_size = self.n_sectors + 4 + self.n_imu + self.n_depth
+        self.n_visits = cfg.observation.visit_sectors
+        self.visit_memory = cfg.observation.visit_memory if self.n_visits else 0  # breadcrumbs kept per env
+        self.frame_size = self.n_sectors + 4 + self.n_imu + self.n_depth + self.n_visits
         self.obs_size = self.frame_size * cfg.observation.history
         if self.families:
             self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
@@ -100,7 +102,17 @@ class NavTask(BatchedTask):
         # IMU: accelerations by the largest centripetal one (v_max * omega_max), yaw rate by omega_max.
         s += [1.0 / max(r.v_max * r.omega_max, 1e-9)] * 2 + [1.0 / max(r.omega_max, 1e-9)] if self.n_imu else []
         s += [1.0 / self.cfg.camera.max_range] * self.n_depth
+        s += [1.0] * self.n_visits  # already in [0, 1)
         return torch.tensor(s, dtype=self.dtype, device=self.device)
+
+    @property
+    def unit_features(self) -> Tensor:
+        """Mask ``(obs_size,)`` of the observation's features that are already in [0, 1) and whose
+        spread under random actions says nothing of a policy's (the visit memory: random actions
+        hardly leave the start). Normalisation statistics must leave these as they are."""
+        frame = torch.zeros(self.frame_size, dtype=torch.bool, device=self.device)
+        frame[self.frame_size - self.n_visits:] = True
+        return frame.repeat(self.cfg.observation.history)
 
     @staticmethod
     def goal_vector(pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
@@ -111,9 +123,10 @@ class NavTask(BatchedTask):
         bearing = wrap_angle(torch.atan2(torch.where(far, dy, 0.0), torch.where(far, dx, 1.0)) - pose[:, 2])
         return dist, bearing
 
-    def observe(self, sim: SimState, goal: Tensor) -> Tensor:
+    def observe(self, sim: SimState, goal: Tensor, crumbs: Tensor | None = None) -> Tensor:
         """One observation ``(B, D)``: lidar sectors, goal distance and bearing, (v, omega), then the
-        IMU reading (``observation.imu``) and the camera's depth row (``observation.camera``)."""
+        IMU reading (``observation.imu``), the camera's depth row (``observation.camera``) and the
+        breadcrumbs ``crumbs`` ``(B, K, 2)`` seen per sector (``observation.visit_sectors``)."""
         sectors = sectorize(sim.ranges, self.n_sectors)
         pose = sim.odom if self.cfg.observation.goal_from_odom else sim.pose
         dist, bearing = self.goal_vector(pose, goal)
@@ -124,6 +137,8 @@ class NavTask(BatchedTask):
             parts.append(sim.imu)
         if self.n_depth:
             parts.append(sim.cam_depth)
+        if self.n_visits:
+            parts.append(visit_features(sim.odom, crumbs, self.n_visits, self.cfg.observation.visit_radius))
         obs = torch.cat(parts, dim=-1)
         return obs * self._obs_scale
 
@@ -163,13 +178,17 @@ class NavTask(BatchedTask):
             env_params = nominal_env_params(self.params, n, start)
         sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
                          delay_steps=self.delay_steps)
-        obs = self.observe(sim, goal)
+        crumbs = torch.full((n, self.visit_memory, 2), FAR, dtype=self.dtype, device=self.device)
+        crumbs[:, :1] = sim.odom[:, None, :2]  # the first breadcrumb marks the start
+        crumb_count = torch.ones(n, dtype=torch.int64, device=self.device)
+        obs = self.observe(sim, goal, crumbs)
         dist, _ = self.goal_vector(sim.pose, goal)
         return NavState(
             world=world, goal=goal, start=start, goal_dist=dist, goal_field=goal_field, goal_frame=goal_frame,
             goal_path=self._progress_distance(goal_field, goal_frame, goal, sim.pose, dist, torch.full_like(dist, math.inf)),
             ep_path=torch.zeros(n, dtype=self.dtype, device=self.device),
-            straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params, **self._episode_start(sim, obs),
+            straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params,
+            crumbs=crumbs, crumb_count=crumb_count, **self._episode_start(sim, obs),
         )
 
     def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
@@ -249,14 +268,18 @@ class NavTask(BatchedTask):
             self.weights, self.cfg.reward, success=success, collision=collision, vel=sim.vel,
             d_min=sim.ranges.amin(-1), progress=progress, bearing=bearing,
         )
-        common, reward = self._episode_step(state, sim, self.observe(sim, state.goal), terms)
+        crumbs, crumb_count = state.crumbs, state.crumb_count
+        if self.visit_memory:
+            crumbs, crumb_count = drop_crumb(crumbs, crumb_count, sim.odom, self.cfg.observation.visit_spacing)
+        common, reward = self._episode_step(state, sim, self.observe(sim, state.goal, crumbs), terms)
         terminated = success | collision
         truncated = (common["steps"] >= self.cfg.max_steps) & ~terminated
         new = NavState(
             world=state.world, goal=state.goal, start=state.start, goal_dist=dist, goal_field=state.goal_field, goal_frame=state.goal_frame,
             goal_path=goal_path,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
-            straight=state.straight, family=state.family, difficulty=state.difficulty, env_params=state.env_params, **common,
+            straight=state.straight, family=state.family, difficulty=state.difficulty, env_params=state.env_params,
+            crumbs=crumbs, crumb_count=crumb_count, **common,
         )
         history = common["history"]
         out = {
@@ -283,3 +306,36 @@ class NavState(TaskState):
     family: Tensor  # (B,) int64 index of the episode's world family in cfg.worlds.families (0 without)
     difficulty: Tensor  # (B,) that family's difficulty in [0, 1]
     env_params: EnvParams  # per-env robot and sensor parameters (cfg.randomize; cfg's values when none)
+    crumbs: Tensor  # (B, K, 2) m, breadcrumbs dropped along the odometry's path (K = observation.visit_memory, 0 when off); FAR where none yet
+    crumb_count: Tensor  # (B,) int64 breadcrumbs dropped this episode (the newest is at (count - 1) % K)
+
+
+FAR = 1.0e6  # m, where an unused breadcrumb slot lies: beyond any visit radius
+
+
+def drop_crumb(crumbs: Tensor, count: Tensor, odom: Tensor, spacing: float) -> tuple[Tensor, Tensor]:
+    """``crumbs`` ``(B, K, 2)`` and ``count`` ``(B,)`` after a step that ended at ``odom`` ``(B, 3)``: a
+    new breadcrumb at the odometry's position in the envs that drove at least ``spacing`` m from the
+    newest one, written over the oldest once all ``K`` slots are used. No host synchronisation."""
+    k = crumbs.shape[1]
+    newest = crumbs.gather(1, ((count - 1) % k)[:, None, None].expand(-1, 1, 2)).squeeze(1)
+    drop = safe_hypot(odom[:, 0] - newest[:, 0], odom[:, 1] - newest[:, 1]) >= spacing
+    slot = torch.arange(k, device=crumbs.device) == (count % k)[:, None]
+    crumbs = torch.where((drop[:, None] & slot)[..., None], odom[:, None, :2].detach(), crumbs)
+    return crumbs, count + drop.long()
+
+
+def visit_features(odom: Tensor, crumbs: Tensor, n_sectors: int, radius: float) -> Tensor:
+    """How visited each direction around the robot is, ``(B, S)`` in [0, 1): sector ``k`` covers
+    bearings within ``pi / S`` of ``2 pi k / S`` (robot frame, counter-clockwise; sector 0 ahead).
+    A breadcrumb at distance ``d`` weighs ``max(0, 1 - d / radius)``; a sector reads
+    ``1 - exp(-w / 4)`` of its summed weight ``w``: one straight pass of breadcrumbs 0.5 m apart
+    through a 3 m radius reads about 0.46, two 0.71. Not differentiable (a count)."""
+    odom, crumbs = odom.detach(), crumbs.detach()
+    dx, dy = crumbs[..., 0] - odom[:, None, 0], crumbs[..., 1] - odom[:, None, 1]
+    c, s = torch.cos(odom[:, 2:3]), torch.sin(odom[:, 2:3])
+    x, y = c * dx + s * dy, c * dy - s * dx  # robot frame
+    weight = (1.0 - torch.sqrt(x * x + y * y) / radius).clamp(min=0.0)
+    sector = torch.round(torch.atan2(y, x) * (n_sectors / (2 * math.pi))).long() % n_sectors
+    summed = torch.zeros(odom.shape[0], n_sectors, dtype=odom.dtype, device=odom.device).scatter_add_(1, sector, weight)
+    return 1.0 - torch.exp(-summed / 4.0)
