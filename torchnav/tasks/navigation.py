@@ -138,6 +138,8 @@ class NavTask(BatchedTask):
         if self.n_depth:
             parts.append(sim.cam_depth)
         if self.n_visits:
+            if crumbs is None:
+                raise ValueError("observation.visit_sectors is on: observe needs the episode's breadcrumbs (NavState.crumbs)")
             parts.append(visit_features(sim.odom, crumbs, self.n_visits, self.cfg.observation.visit_radius))
         obs = torch.cat(parts, dim=-1)
         return obs * self._obs_scale
@@ -179,7 +181,7 @@ class NavTask(BatchedTask):
         sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
                          delay_steps=self.delay_steps)
         crumbs = torch.full((n, self.visit_memory, 2), FAR, dtype=self.dtype, device=self.device)
-        crumbs[:, :1] = sim.odom[:, None, :2]  # the first breadcrumb marks the start
+        crumbs[:, :1] = sim.odom[:, None, :2].detach()  # the first breadcrumb marks the start (no memory without visit_sectors)
         crumb_count = torch.ones(n, dtype=torch.int64, device=self.device)
         obs = self.observe(sim, goal, crumbs)
         dist, _ = self.goal_vector(sim.pose, goal)
