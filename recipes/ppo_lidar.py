@@ -82,10 +82,8 @@ def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
     td = env.rollout(steps, break_when_any_done=False)
     obs = td["observation"].reshape(-1, td["observation"].shape[-1]).double()
     loc, scale = obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
-    unit = getattr(env.task, "unit_features", None)
-    if unit is not None:
-        loc, scale = loc.masked_fill(unit.to(loc.device), 0.0), scale.masked_fill(unit.to(loc.device), 1.0)
-    return loc, scale
+    unit = env.task.unit_features.to(loc.device)
+    return loc.masked_fill(unit, 0.0), scale.masked_fill(unit, 1.0)
 
 
 def main(argv: list[str], name: str = "ppo_lidar") -> dict:

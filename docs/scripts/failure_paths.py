@@ -4,7 +4,7 @@ the shortest free path to the goal (docs/results.md, "Why the walled worlds fail
     python docs/scripts/failure_paths.py CHECKPOINT --family corridors --difficulty 0.5 --seed 2170819
 
 It plays the same episodes as that cell of ``recipes/benchmark.py`` (the cell's seed, episodes and
-config: ``eval_config``), with the episode's goal-distance grid kept (``reward.progress_distance:
+config: ``Cell.config``), with the episode's goal-distance grid kept (``reward.progress_distance:
 geodesic``, which changes no episode), and reads after every step the robot's path distance to the
 goal. Per outcome (success, collision, timeout) it prints how many episodes backtracked, that is
 were at some step more than 0.5 / 1 / 2 m of path farther from the goal than the closest they had
@@ -24,10 +24,10 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "recipes"))
 import _common as C  # noqa: E402
+from benchmark import Cell  # noqa: E402
 
 from torchnav.config import merge, to_dict  # noqa: E402
 from torchnav.envs.nav_env import NavEnv  # noqa: E402
-from torchnav.evaluation import eval_config  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
 from torchnav.tasks.config import NavConfig  # noqa: E402
 from torchnav.worlds import FAMILIES  # noqa: E402
@@ -43,7 +43,7 @@ def play(checkpoint: str, family: str, difficulty: float, seed: int, episodes: i
     sp = load_policy(checkpoint)
     if sp.task != "nav":
         raise SystemExit(f"{checkpoint}: a {sp.task} policy; this script plays navigation policies")
-    cfg = eval_config(sp.config(), worlds={"families": {family: 1.0}, "difficulty": difficulty})
+    cfg = Cell(family, "world", family, None, difficulty, seed).config(sp.config())  # the benchmark's own cell config
     cfg = NavConfig.from_dict(merge(to_dict(cfg), {"reward": {"progress_distance": "geodesic"}}))
     env = NavEnv(cfg, num_envs=episodes, device="cpu", seed=seed)
     td = env.reset()

@@ -35,6 +35,13 @@ class BatchedTask:
         self.device = torch.device(device)
         self.dtype = dtype
 
+    @property
+    def unit_features(self) -> torch.Tensor:
+        """Mask ``(obs_size,)`` of the observation's features that are already in [0, 1) and whose
+        spread under random actions says nothing of a policy's: normalisation statistics must
+        leave these as they are. None here; a task with such features overrides this."""
+        return torch.zeros(self.obs_size, dtype=torch.bool, device=self.device)
+
     def _episode_start(self, sim: SimState, frame: Tensor) -> dict[str, Any]:
         """The :class:`TaskState` fields of new episodes whose first observation frame is
         ``frame`` ``(n, D)``: a history of ``H`` copies of it, no steps, zero sums."""

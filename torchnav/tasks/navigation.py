@@ -107,9 +107,8 @@ class NavTask(BatchedTask):
 
     @property
     def unit_features(self) -> Tensor:
-        """Mask ``(obs_size,)`` of the observation's features that are already in [0, 1) and whose
-        spread under random actions says nothing of a policy's (the visit memory: random actions
-        hardly leave the start). Normalisation statistics must leave these as they are."""
+        """The visit memory's values (:meth:`BatchedTask.unit_features`): random actions hardly
+        leave the start, so their spread under them says nothing of a policy's."""
         frame = torch.zeros(self.frame_size, dtype=torch.bool, device=self.device)
         frame[self.frame_size - self.n_visits:] = True
         return frame.repeat(self.cfg.observation.history)
