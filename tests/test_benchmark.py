@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 
 from torchnav.controllers import CONTROLLERS, make_controller
 from torchnav.envs import NavEnv
@@ -173,7 +174,11 @@ def test_failure_paths_plays_the_benchmark_cells_episodes():
     sys.path.insert(0, str(ROOT / "docs" / "scripts"))
     failure_paths = importlib.import_module("failure_paths")
     ckpt = ROOT / "checkpoints" / "ppo_generalist_actor.pt"
-    outcomes, path, xy, steps = failure_paths.play(str(ckpt), "corridors", 0.5, 2170819, 12)
+    levels = benchmark.parse_levels(list(benchmark.DEFAULT_LEVELS))
+    (cell,) = [c for c in benchmark.suite([], ["corridors"], levels, benchmark.SEED_BASE) if c.level == "medium"]
+    assert cell.seed == 2170819  # the seed docs/results.md quotes for corridors/medium
+    ep = failure_paths.play(str(ckpt), cell, 12)
+    outcomes, path, xy, steps = ep.outcomes, ep.path, ep.xy, ep.steps
     sp = load_policy(ckpt)
     res = run_episodes(sp.policy, eval_config(sp.config(), worlds={"families": {"corridors": 1.0}, "difficulty": 0.5}), 12, seed=2170819)
     want = "".join("S" if s else "C" if c else "T" for s, c in zip(res["success"].tolist(), res["collision"].tolist()))
@@ -184,3 +189,23 @@ def test_failure_paths_plays_the_benchmark_cells_episodes():
     for i, o in enumerate(outcomes):
         if o == "S":  # a success ends within the goal tolerance (0.3 m), read through the coarse grid (cells of 0.15-0.3 m here)
             assert float(path[i, int(steps[i])]) < 0.3 + 0.25
+
+
+def test_failure_paths_on_a_map_cell_and_its_picture(tmp_path):
+    """On a shipped map (no goal grid) failure_paths measures straight-line distances, plays the
+    benchmark's episodes of that map, and --picture draws the failures it names."""
+    sys.path.insert(0, str(ROOT / "docs" / "scripts"))
+    failure_paths = importlib.import_module("failure_paths")
+    ckpt = ROOT / "checkpoints" / "ppo_generalist_actor.pt"
+    (cell,) = benchmark.suite(["warehouse"], [], {}, benchmark.SEED_BASE)
+    ep = failure_paths.play(str(ckpt), cell, 8)
+    sp = load_policy(ckpt)
+    res = run_episodes(sp.policy, eval_config(sp.config(), map="warehouse"), 8, seed=cell.seed)
+    assert ep.outcomes == "".join("S" if s else "C" if c else "T" for s, c in zip(res["success"].tolist(), res["collision"].tolist()))
+    torch.testing.assert_close(ep.path[:, 0], res["straight_line"].to(ep.path.dtype))  # the start's straight line to its goal
+    for i, o in enumerate(ep.outcomes):
+        if o == "S":
+            assert float(ep.path[i, int(ep.steps[i])]) < 0.3
+    out = tmp_path / "failures.png"
+    drawn = failure_paths.picture(ep, "S", "successes", out)
+    assert drawn == min(6, ep.outcomes.count("S")) and drawn > 0 and out.stat().st_size > 10_000
