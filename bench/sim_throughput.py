@@ -164,7 +164,15 @@ def step_fn(mode: str, params: SimParams, dynamic: bool, env_params: EnvParams |
     if mode.startswith("eager"):
         return fn
     if mode == "cudagraphs":
-        return torch.compile(fn, mode="reduce-overhead", dynamic=dynamic)
+        graphed = torch.compile(fn, mode="reduce-overhead", dynamic=dynamic)
+
+        def replay(state: SimState, action: torch.Tensor, world: World) -> SimState:
+            # A replay overwrites the graph's output buffers, and each step's input is the last
+            # step's output: start a new step and copy the state out of the graph's memory pool.
+            torch.compiler.cudagraph_mark_step_begin()
+            return graphed(state, action, world).clone()
+
+        return replay
     return torch.compile(fn, dynamic=dynamic)
 
 
