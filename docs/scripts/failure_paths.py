@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -178,7 +178,7 @@ def main(argv: list[str]) -> None:
         cell = cells[0] if cells else Cell(a.family, "world", a.family, None, a.difficulty, a.seed)
         where = f"{a.family} at difficulty {a.difficulty:g}"
     if a.seed is not None:
-        cell = Cell(cell.label, cell.kind, cell.name, cell.level, cell.difficulty, a.seed)
+        cell = replace(cell, seed=a.seed)
     ep = play(a.checkpoint, cell, a.episodes)
     print(f"{Path(a.checkpoint).name} on {where}, seed {cell.seed}, {a.episodes} episodes "
           f"({'path' if cell.kind == 'world' else 'straight-line'} distances to the goal)")
