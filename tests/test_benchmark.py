@@ -168,6 +168,11 @@ def test_paired_successes_is_the_exact_mcnemar_test():
         paired_successes([True], [True, False])
 
 
+def outcome_letters(res: dict) -> str:
+    """``run_episodes``' result as one letter per episode: S(uccess), C(ollision) or T(imeout)."""
+    return "".join("S" if s else "C" if c else "T" for s, c in zip(res["success"].tolist(), res["collision"].tolist()))
+
+
 def test_failure_paths_plays_the_benchmark_cells_episodes():
     """docs/scripts/failure_paths.py keeps each episode's goal-distance grid to read the path
     distance after every step; that must leave the cell's episodes as the benchmark plays them."""
@@ -181,8 +186,7 @@ def test_failure_paths_plays_the_benchmark_cells_episodes():
     outcomes, path, xy, steps = ep.outcomes, ep.path, ep.xy, ep.steps
     sp = load_policy(ckpt)
     res = run_episodes(sp.policy, eval_config(sp.config(), worlds={"families": {"corridors": 1.0}, "difficulty": 0.5}), 12, seed=2170819)
-    want = "".join("S" if s else "C" if c else "T" for s, c in zip(res["success"].tolist(), res["collision"].tolist()))
-    assert outcomes == want
+    assert outcomes == outcome_letters(res)
     assert steps.tolist() == res["length"].long().tolist()
     assert path.shape == (12, int(steps.max()) + 1) and xy.shape == (12, int(steps.max()), 2)
     assert bool(path[:, 0].isfinite().all())  # every generated start has a known path to its goal
@@ -201,7 +205,7 @@ def test_failure_paths_on_a_map_cell_and_its_picture(tmp_path):
     ep = failure_paths.play(str(ckpt), cell, 8)
     sp = load_policy(ckpt)
     res = run_episodes(sp.policy, eval_config(sp.config(), map="warehouse"), 8, seed=cell.seed)
-    assert ep.outcomes == "".join("S" if s else "C" if c else "T" for s, c in zip(res["success"].tolist(), res["collision"].tolist()))
+    assert ep.outcomes == outcome_letters(res)
     torch.testing.assert_close(ep.path[:, 0], res["straight_line"].to(ep.path.dtype))  # the start's straight line to its goal
     for i, o in enumerate(ep.outcomes):
         if o == "S":

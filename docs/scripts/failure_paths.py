@@ -96,7 +96,7 @@ def picture(ep: Episodes, letter: str, title: str, out: Path) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from torchnav.render import draw_world
+    from torchnav.render import draw_goal, draw_world
 
     idx = [i for i, o in enumerate(ep.outcomes) if o == letter][:6]
     if not idx:
@@ -111,7 +111,7 @@ def picture(ep: Episodes, letter: str, title: str, out: Path) -> int:
         ax.plot(xy[:, 0], xy[:, 1], "-", lw=0.8, color="tab:blue")
         ax.plot(xy[-100:, 0], xy[-100:, 1], "-", lw=1.3, color="tab:red")
         ax.plot(*xy[0], "o", color="tab:green", ms=7)
-        ax.plot(*ep.goal[i].numpy(), "k*", ms=13)
+        draw_goal(ax, ep.goal, env=i)
         ax.set_aspect("equal")
         ax.set_title(f"episode {i}", fontsize=9)
     fig.suptitle(title, fontsize=10)
