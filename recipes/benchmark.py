@@ -6,7 +6,7 @@ difficulties, the same seeded episodes for any checkpoints and the classical con
     python recipes/benchmark.py --maps arena maze --families forest --levels easy=0.2 hard=0.8 --controllers reactive astar
 
 Cells: each map of ``--maps`` (default every shipped map; goals anywhere, curriculum
-off) and each family of ``--families`` (default ``rooms corridors cave forest open``) at
+off) and each family of ``--families`` (default ``rooms corridors cave forest open fences``) at
 each level of ``--levels`` (default ``easy=0.2 medium=0.5 hard=0.8``, a difficulty in
 [0, 1]): every episode of such a cell is a fresh world of that family at that difficulty,
 with the generator's start and reachable goal (curriculum off; docs/worlds.md).

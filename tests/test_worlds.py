@@ -15,7 +15,7 @@ from torchnav.controllers.planning import Obstacles, OccupancyGrid, plan_astar
 from torchnav.maps import load_map
 from torchnav.sim import World, cat_worlds, check_world, points_clearance
 from torchnav.worlds import FAMILIES, cat_batches, goal_band, goal_distance, goal_distance_grid, make_worlds, mix_worlds, slot_counts
-from torchnav.worlds import cave, corridors, forest, open_space, rooms
+from torchnav.worlds import cave, corridors, fences, forest, open_space, rooms
 from torchnav.worlds.raster import clearance_grid
 from torchnav.worlds.wavefront import DIAG, ORTHO, UNREACHED, geodesic_distance
 
@@ -124,12 +124,14 @@ def test_parameters_move_monotonically_with_difficulty():
     d = torch.linspace(0, 1, 11)
     up = lambda t: bool((t[1:] >= t[:-1]).all() and t[-1] > t[0])  # noqa: E731
     down = lambda t: up(-t)  # noqa: E731
-    r, c, k, f, o = rooms.params(d), corridors.params(d), cave.params(d), forest.params(d), open_space.params(d)
+    r, c, k, f, o, g = rooms.params(d), corridors.params(d), cave.params(d), forest.params(d), open_space.params(d), fences.params(d)
     assert up(r["rooms_per_side"]) and down(r["door_width"]) and r["door_width"][0] == 1.6 and r["door_width"][-1] == 0.8
     assert up(c["cells_per_side"]) and down(c["corridor_width"]) and down(c["loop_prob"])
     assert up(k["fill"])
     assert up(f["posts"]) and down(f["radius_min"]) and down(f["radius_max"]) and abs(float(f["radius_min"][-1]) - 0.05) < 1e-6
     assert up(o["side"]) and up(o["boxes"]) and float(o["side"][-1]) == 20.0
+    assert up(g["fences"]) and down(g["gaps"]) and down(g["gap_min"]) and down(g["gap_max"]) and up(g["post_prob"]) and up(g["thickness_max"])
+    assert abs(float(g["gap_min"][-1]) - 0.55) < 1e-6 and (g["gap_min"] < g["gap_max"]).all()
     lo, hi = goal_band(d)
     assert up(lo) and up(hi) and (lo < hi).all()
 
@@ -156,6 +158,39 @@ def test_measured_geometry_follows_difficulty():
     # corridors: narrower (the maze side is cells * width)
     (_, be), (_, bh) = corridors.layout(easy, gen()), corridors.layout(hard, gen())
     assert torch.allclose(be[:, 2] * 2, torch.full((16,), 8.0)) and torch.allclose(bh[:, 2] * 2, torch.full((16,), 7.2))
+
+
+def fence_gaps(world: World, half: float, e: int) -> list[float]:
+    """The free widths along every fence of env ``e`` of a ``fences`` world: each opening between two
+    solid pieces (or a piece and the wall), split in two where a post stands in it."""
+    per = fences.MAX_GAPS + 1
+    gaps = []
+    for k in range(fences.MAX_FENCES):
+        on = world.box_mask[e, k * per:(k + 1) * per]
+        if not on.any():
+            continue
+        box = world.boxes[e, k * per:(k + 1) * per][on].double()
+        axis = int(box[:, 2:4].amax(0).argmax())  # a fence runs along its pieces' long side
+        cuts = sorted([-half] + [v for c, hl in zip(box[:, axis].tolist(), box[:, 2 + axis].tolist()) for v in (c - hl, c + hl)] + [half])
+        posts = world.circles[e, k * fences.MAX_GAPS:(k + 1) * fences.MAX_GAPS][world.circle_mask[e, k * fences.MAX_GAPS:(k + 1) * fences.MAX_GAPS]]
+        for lo, hi in zip(cuts[::2], cuts[1::2]):
+            inside = [(float(p[axis]), float(p[2])) for p in posts if lo < float(p[axis]) < hi]
+            edges = [lo] + [v for c, r in inside for v in (c - r, c + r)] + [hi]
+            gaps += [b - a for a, b in zip(edges[::2], edges[1::2]) if b - a > 1e-6]
+    return gaps
+
+
+def test_fence_gaps_narrow_with_difficulty_and_posts_split_openings():
+    for d in (0.0, 0.5, 0.8, 1.0):
+        p = {k: float(v) for k, v in fences.params(torch.tensor([d])).items()}
+        world, bounds = fences.layout(torch.full((32,), d), gen(4))
+        gaps = [g for e in range(32) for g in fence_gaps(world, float(bounds[e, 2]), e)]
+        # Each gap's width is drawn in [gap_min, gap_max]; a piece shorter than MIN_PIECE is left out,
+        # which widens a gap at a wall by at most that.
+        assert len(gaps) >= 32 and min(gaps) >= p["gap_min"] - 1e-4 and max(gaps) <= p["gap_max"] + fences.MIN_PIECE + 1e-4, (d, min(gaps), max(gaps))
+        assert (world.box_mask.reshape(32, fences.MAX_FENCES, -1).any(-1).sum(1) == int(p["fences"])).all()
+        if d >= 0.8:
+            assert world.circle_mask.any(1).float().mean() > 0.5 and min(gaps) < 0.7  # posts, and gaps as narrow as warehouse's 0.65 m
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -10,12 +10,12 @@ from torch import Tensor
 
 from ..maps import MapError, available_maps, load_map
 from ..sim import World
-from . import cave, corridors, forest, open_space, rooms
+from . import cave, corridors, fences, forest, open_space, rooms
 from .batch import WorldBatch, cat_batches
 from .layout import as_difficulty, centred_bounds
 from .placement import place_episodes
 
-FAMILIES: dict[str, ModuleType] = {"rooms": rooms, "corridors": corridors, "cave": cave, "forest": forest, "open": open_space}
+FAMILIES: dict[str, ModuleType] = {"rooms": rooms, "corridors": corridors, "cave": cave, "forest": forest, "open": open_space, "fences": fences}
 MAP_PREFIX = "map:"  # "map:<name>" is a shipped map (or a .yaml path) as a family
 MAP_RESOLUTION = 0.1  # m, placement grid for maps (coarser for maps over 24 m, see _map_layout)
 
