@@ -75,8 +75,10 @@ def layout(d: Tensor, generator: torch.Generator) -> tuple[World, Tensor]:
     hi = torch.cat((start, h.expand(b, f_, 1)), 2)  # (B, F, G + 1)
     fence_on = (torch.arange(f_, device=dev) < n)[..., None]  # (B, F, 1)
     piece_on = fence_on & (hi - lo > MIN_PIECE)
-    y = across[..., None].expand(b, f_, g_ + 1)
-    pieces = torch.stack(((lo + hi) / 2, y, ((hi - lo) / 2).clamp(min=0), (thickness / 2)[..., None].expand_as(y), torch.zeros_like(y)), -1)
+    # Laid out along x, each fence at y = across: a piece's centre, half extents and yaw 0.
+    fence_y = across[..., None].expand(b, f_, g_ + 1)
+    pieces = torch.stack(((lo + hi) / 2, fence_y, ((hi - lo) / 2).clamp(min=0), (thickness / 2)[..., None].expand_as(fence_y),
+                          torch.zeros_like(fence_y)), -1)
     post_on = fence_on & real & post
     posts = torch.stack(((start + end) / 2, across[..., None].expand(b, f_, g_), radius), -1)
     # Half the worlds run their fences along y: swap x and y of every centre and half extent.
