@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import subprocess
 import sys
@@ -311,3 +312,11 @@ def test_shipped_navigation_policy_fits_only_quantised(tmp_path, capsys):
         p = subprocess.run(["make", "-C", str(tmp_path / "i8")], capture_output=True, text=True)
         assert p.returncode == 0, p.stdout + p.stderr
         assert (tmp_path / "i8" / "policy_m4.elf").is_file()
+
+
+def test_export_report_lists_every_shipped_checkpoint():
+    """docs/scripts/export_report.py measures "every shipped policy": its list is checkpoints/*.pt."""
+    spec = importlib.util.spec_from_file_location("export_report", ROOT / "docs" / "scripts" / "export_report.py")
+    report = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(report)
+    assert sorted(report.CHECKPOINTS) == sorted(p.stem for p in (ROOT / "checkpoints").glob("*.pt"))
