@@ -536,49 +536,6 @@ def test_visit_memory_in_the_task_observation_and_resets():
         make_task("arena", n=1, observation={"visit_sectors": 4, "visit_spacing": 0.0})
 
 
-def test_update_best_counts_steps_since_the_goal_came_nearer_by_the_margin():
-    from torchnav.tasks.navigation import PROGRESS_MARGIN, update_best
-
-    best, since = torch.tensor([5.0, 5.0]), torch.zeros(2, dtype=torch.int64)
-    # Env 0 comes nearer 0.25 m a step, then backs off; env 1 creeps 0.05 m a step (below the margin).
-    trace0 = [4.75, 4.5, 4.25, 4.5, 4.75, 4.3]
-    for i, d0 in enumerate(trace0):
-        best, since = update_best(best, since, torch.tensor([d0, 5.0 - 0.05 * (i + 1)]))
-    assert best[0].item() == pytest.approx(4.25) and since[0].item() == 3  # 4.3 is not 0.2 m below 4.25
-    assert PROGRESS_MARGIN == pytest.approx(0.2)
-    # Env 1 crept 0.3 m in 6 steps: the best fell once, when it first lay more than 0.2 m below 5 (at 4.75).
-    assert best[1].item() == pytest.approx(4.75) and since[1].item() == 1
-
-
-def test_progress_memory_in_the_task_observation_and_resets():
-    from torchnav.tasks.navigation import PROGRESS_SCALE, STALL_SCALE, progress_features
-
-    task = make_task("empty", n=3, observation={"visit_sectors": 4, "progress_memory": True})
-    assert task.frame_size == 30 and task.unit_features.tolist() == [False] * 24 + [True] * 6
-    state, cur, gen = start(task, seed=1)
-    # Robots 0 and 1 face the goal 6 m ahead (0 drives, 1 stands), robot 2 faces away and drives.
-    state = place(task, state, [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, math.pi]], [[6.0, 0.0]] * 3)
-    state.best_dist = task.goal_vector(state.sim.pose, state.goal)[0]
-    a = torch.tensor([[0.9, 0.0], [-1.0, 0.0], [0.9, 0.0]])
-    for _ in range(20):
-        state, out = task.step(state, a, gen)
-    obs = out["observation"][:, -2:]
-    d = state.goal_dist
-    torch.testing.assert_close(obs, progress_features(d, state.best_dist, state.since_best))
-    # Driving at the goal keeps the best within the margin of the distance and the count low.
-    assert (d[0] - state.best_dist[0]).abs() < 0.2 and state.since_best[0] < 3
-    # Standing still or driving away: the best stays the start's 6 m and the count runs on.
-    assert state.best_dist[1:].tolist() == pytest.approx([6.0, 6.0]) and state.since_best[1:].tolist() == [20, 20]
-    assert obs[1, 0] == 0 and obs[1, 1].item() == pytest.approx(1 - math.exp(-20 / STALL_SCALE))
-    assert obs[2, 0].item() == pytest.approx(1 - math.exp(-(d[2].item() - 6.0) / PROGRESS_SCALE), abs=1e-5)
-    # A reset starts the memory again from the new start's distance.
-    state, cur = task.reset(state, torch.tensor([False, False, True]), cur, gen)
-    assert state.since_best.tolist() == [state.since_best[0].item(), 20, 0]
-    torch.testing.assert_close(state.best_dist[2], task.goal_vector(state.sim.pose, state.goal)[0][2])
-    with pytest.raises(ValueError, match="progress_memory"):
-        task.observe(state.sim, state.goal, state.crumbs)
-
-
 def test_lidar_noise_changes_ranges_within_bounds():
     clean, noisy = make_task("arena", n=4), make_task("arena", n=4, lidar={"noise_std": 0.5})
     sc, _, gc = start(clean, seed=1)

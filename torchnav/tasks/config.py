@@ -138,9 +138,6 @@ class ObservationConfig:
     visit_radius: float = 3.0  # m
     visit_spacing: float = 0.5  # m between breadcrumbs
     visit_memory: int = 64  # breadcrumbs kept; the oldest is overwritten
-    # Memory of progress (docs/tasks.md#progress-memory): how much farther from the goal the robot is
-    # than the nearest it has come this episode, and how long since it last came nearer: 2 values.
-    progress_memory: bool = False
 
 
 @dataclass(frozen=True)

@@ -57,8 +57,7 @@ class NavTask(BatchedTask):
         self.n_depth = cfg.camera.n_cols if cfg.observation.camera else 0
         self.n_visits = cfg.observation.visit_sectors
         self.visit_memory = cfg.observation.visit_memory if self.n_visits else 0  # breadcrumbs kept per env
-        self.n_progress = 2 if cfg.observation.progress_memory else 0
-        self.frame_size = self.n_sectors + 4 + self.n_imu + self.n_depth + self.n_visits + self.n_progress
+        self.frame_size = self.n_sectors + 4 + self.n_imu + self.n_depth + self.n_visits
         self.obs_size = self.frame_size * cfg.observation.history
         if self.families:
             self._family_weights = torch.tensor([cfg.worlds.families[f] for f in self.families], dtype=dtype, device=self.device)
@@ -103,21 +102,16 @@ class NavTask(BatchedTask):
         # IMU: accelerations by the largest centripetal one (v_max * omega_max), yaw rate by omega_max.
         s += [1.0 / max(r.v_max * r.omega_max, 1e-9)] * 2 + [1.0 / max(r.omega_max, 1e-9)] if self.n_imu else []
         s += [1.0 / self.cfg.camera.max_range] * self.n_depth
-        s += [1.0] * (self.n_visits + self.n_progress)  # already in [0, 1)
+        s += [1.0] * self.n_visits  # already in [0, 1)
         return torch.tensor(s, dtype=self.dtype, device=self.device)
 
     @property
     def unit_features(self) -> Tensor:
-        """The visit and progress memories' values (:meth:`BatchedTask.unit_features`): random actions
-        hardly leave the start, so their spread under them says nothing of a policy's."""
+        """The visit memory's values (:meth:`BatchedTask.unit_features`): random actions hardly
+        leave the start, so their spread under them says nothing of a policy's."""
         frame = torch.zeros(self.frame_size, dtype=torch.bool, device=self.device)
-        frame[self.frame_size - self.n_visits - self.n_progress:] = True
+        frame[self.frame_size - self.n_visits:] = True
         return frame.repeat(self.cfg.observation.history)
-
-    def observed_pose(self, sim: SimState) -> Tensor:
-        """The pose ``(B, 3)`` the observation's goal vector is measured from: the odometry's with
-        ``observation.goal_from_odom``, else the true one."""
-        return sim.odom if self.cfg.observation.goal_from_odom else sim.pose
 
     @staticmethod
     def goal_vector(pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
@@ -128,15 +122,13 @@ class NavTask(BatchedTask):
         bearing = wrap_angle(torch.atan2(torch.where(far, dy, 0.0), torch.where(far, dx, 1.0)) - pose[:, 2])
         return dist, bearing
 
-    def observe(self, sim: SimState, goal: Tensor, crumbs: Tensor | None = None,
-                progress: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    def observe(self, sim: SimState, goal: Tensor, crumbs: Tensor | None = None) -> Tensor:
         """One observation ``(B, D)``: lidar sectors, goal distance and bearing, (v, omega), then the
-        IMU reading (``observation.imu``), the camera's depth row (``observation.camera``), the
-        breadcrumbs ``crumbs`` ``(B, K, 2)`` seen per sector (``observation.visit_sectors``) and
-        ``progress``, the episode's ``(best, since)`` (``observation.progress_memory``)."""
+        IMU reading (``observation.imu``), the camera's depth row (``observation.camera``) and the
+        breadcrumbs ``crumbs`` ``(B, K, 2)`` seen per sector (``observation.visit_sectors``)."""
         sectors = sectorize(sim.ranges, self.n_sectors)
-        dist, bearing = self.goal_vector(self.observed_pose(sim), goal)
-        uncapped = dist
+        pose = sim.odom if self.cfg.observation.goal_from_odom else sim.pose
+        dist, bearing = self.goal_vector(pose, goal)
         if self.cfg.observation.goal_distance_cap is not None:
             dist = dist.clamp(max=self.cfg.observation.goal_distance_cap)
         parts = [sectors, dist[:, None], bearing[:, None], sim.vel]
@@ -148,10 +140,6 @@ class NavTask(BatchedTask):
             if crumbs is None:
                 raise ValueError("observation.visit_sectors is on: observe needs the episode's breadcrumbs (NavState.crumbs)")
             parts.append(visit_features(sim.odom, crumbs, self.n_visits, self.cfg.observation.visit_radius))
-        if self.n_progress:
-            if progress is None:
-                raise ValueError("observation.progress_memory is on: observe needs the episode's (best, since) (NavState.best_dist, NavState.since_best)")
-            parts.append(progress_features(uncapped, *progress))
         obs = torch.cat(parts, dim=-1)
         return obs * self._obs_scale
 
@@ -194,16 +182,14 @@ class NavTask(BatchedTask):
         crumbs = torch.full((n, self.visit_memory, 2), FAR, dtype=self.dtype, device=self.device)
         crumbs[:, :1] = sim.odom[:, None, :2].detach()  # the first breadcrumb marks the start (no memory without visit_sectors)
         crumb_count = torch.ones(n, dtype=torch.int64, device=self.device)
-        best = self.goal_vector(self.observed_pose(sim), goal)[0].detach()
-        since = torch.zeros(n, dtype=torch.int64, device=self.device)
-        obs = self.observe(sim, goal, crumbs, (best, since))
+        obs = self.observe(sim, goal, crumbs)
         dist, _ = self.goal_vector(sim.pose, goal)
         return NavState(
             world=world, goal=goal, start=start, goal_dist=dist, goal_field=goal_field, goal_frame=goal_frame,
             goal_path=self._progress_distance(goal_field, goal_frame, goal, sim.pose, dist, torch.full_like(dist, math.inf)),
             ep_path=torch.zeros(n, dtype=self.dtype, device=self.device),
             straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params,
-            crumbs=crumbs, crumb_count=crumb_count, best_dist=best, since_best=since, **self._episode_start(sim, obs),
+            crumbs=crumbs, crumb_count=crumb_count, **self._episode_start(sim, obs),
         )
 
     def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
@@ -286,9 +272,7 @@ class NavTask(BatchedTask):
         crumbs, crumb_count = state.crumbs, state.crumb_count
         if self.visit_memory:
             crumbs, crumb_count = drop_crumb(crumbs, crumb_count, sim.odom, self.cfg.observation.visit_spacing)
-        observed = dist if not self.cfg.observation.goal_from_odom else self.goal_vector(sim.odom, state.goal)[0]
-        best, since = update_best(state.best_dist, state.since_best, observed)
-        common, reward = self._episode_step(state, sim, self.observe(sim, state.goal, crumbs, (best, since)), terms)
+        common, reward = self._episode_step(state, sim, self.observe(sim, state.goal, crumbs), terms)
         terminated = success | collision
         truncated = (common["steps"] >= self.cfg.max_steps) & ~terminated
         new = NavState(
@@ -296,7 +280,7 @@ class NavTask(BatchedTask):
             goal_path=goal_path,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
             straight=state.straight, family=state.family, difficulty=state.difficulty, env_params=state.env_params,
-            crumbs=crumbs, crumb_count=crumb_count, best_dist=best, since_best=since, **common,
+            crumbs=crumbs, crumb_count=crumb_count, **common,
         )
         history = common["history"]
         out = {
@@ -325,8 +309,6 @@ class NavState(TaskState):
     env_params: EnvParams  # per-env robot and sensor parameters (cfg.randomize; cfg's values when none)
     crumbs: Tensor  # (B, K, 2) m, breadcrumbs dropped along the odometry's path (K = observation.visit_memory, 0 when off); FAR where none yet
     crumb_count: Tensor  # (B,) int64 breadcrumbs dropped this episode (the newest is at (count - 1) % K)
-    best_dist: Tensor  # (B,) m, the nearest the observed goal distance has come this episode (in steps of PROGRESS_MARGIN)
-    since_best: Tensor  # (B,) int64 steps since best_dist last fell
 
 
 FAR = 1.0e6  # m, where an unused breadcrumb slot lies: beyond any visit radius
@@ -358,26 +340,3 @@ def visit_features(odom: Tensor, crumbs: Tensor, n_sectors: int, radius: float) 
     sector = torch.round(torch.atan2(y, x) * (n_sectors / (2 * math.pi))).long() % n_sectors
     summed = torch.zeros(odom.shape[0], n_sectors, dtype=odom.dtype, device=odom.device).scatter_add_(1, sector, weight)
     return 1.0 - torch.exp(-summed / 4.0)
-
-
-PROGRESS_MARGIN = 0.2  # m the observed goal distance must fall below the best so far to count as coming nearer
-PROGRESS_SCALE = 2.0  # m: an excess over the best of this reads 1 - 1/e
-STALL_SCALE = 100.0  # steps (10 s): this long without coming nearer reads 1 - 1/e
-
-
-def update_best(best: Tensor, since: Tensor, dist: Tensor) -> tuple[Tensor, Tensor]:
-    """The progress memory after a step that ended ``dist`` ``(B,)`` m from the goal: the best
-    distance ``best`` ``(B,)`` and the steps ``since`` ``(B,)`` it last fell; it falls (and ``since``
-    restarts at 0) when ``dist`` is at least ``PROGRESS_MARGIN`` below it, so creeping does not count."""
-    dist = dist.detach()
-    nearer = dist < best - PROGRESS_MARGIN
-    return torch.where(nearer, dist, best), torch.where(nearer, 0, since + 1)
-
-
-def progress_features(dist: Tensor, best: Tensor, since: Tensor) -> Tensor:
-    """The progress memory as 2 values in [0, 1), ``(B, 2)``: how much farther from the goal than its
-    best the robot is, ``1 - exp(-max(0, dist - best) / PROGRESS_SCALE)``, and how long since it last
-    came nearer, ``1 - exp(-since / STALL_SCALE)``. What a Bug algorithm remembers (the distance at
-    which it met the obstacle); not differentiable."""
-    excess = (dist.detach() - best).clamp(min=0.0)
-    return torch.stack((1.0 - torch.exp(-excess / PROGRESS_SCALE), 1.0 - torch.exp(-since.to(dist.dtype) / STALL_SCALE)), dim=-1)
