@@ -219,3 +219,54 @@ def test_wrap_angle_never_returns_plus_pi(dtype):
     a = torch.cat((a, torch.nextafter(a, torch.full_like(a, -10.0)), torch.rand(10_000, dtype=dtype) * 200 - 100))
     w = wrap_angle(a)
     assert (w >= -math.pi).all() and (w < math.pi).all()
+
+
+def _guard_scan(scan: str, n: int = 20):
+    from torchnav.sim import LidarParams
+
+    return LidarParams(n_rays=n, fov=2 * math.pi, scan=scan, max_range=10.0)
+
+
+def test_forward_speed_guard_against_points_in_the_path():
+    from torchnav.sim.kinematics import forward_speed_guard
+
+    lidar = _guard_scan("rays", 4)  # rays at -pi, -pi/2, 0, pi/2
+    far = 10.0
+    ranges = torch.tensor([
+        [far, far, 1.0, far],  # a return 1 m straight ahead
+        [0.1, far, far, far],  # behind: never in the path
+        [far, far, far, 0.3],  # beside at 0.3 m: outside radius + clearance (0.25 m)
+        [far, far, far, far],  # nothing: misses read max_range
+    ], dtype=F64)
+    cap = forward_speed_guard(ranges, lidar, 0.2, 0.05, 0.1)
+    assert cap[0].item() == pytest.approx((1.0 - 0.25) / 0.1)
+    assert cap[1:].tolist() == [math.inf, math.inf, math.inf]
+    # A per-env radius (domain randomisation) moves the stop.
+    cap = forward_speed_guard(ranges[:1].expand(2, 4), lidar, torch.tensor([0.2, 0.4], dtype=F64), 0.0, 0.1)
+    torch.testing.assert_close(cap, torch.tensor([8.0, 6.0], dtype=F64))
+
+
+def test_forward_speed_guard_takes_the_worst_bearing_in_each_sector():
+    """A sector scan's return lies somewhere in its 18-degree sector: the guard's bound is the
+    smallest free distance over every bearing in it, found here by brute force."""
+    from torchnav.sim.kinematics import forward_speed_guard
+
+    n, radius, clearance, dt = 20, 0.2, 0.05, 0.1
+    lidar = _guard_scan("sectors", n)
+    width = 2 * math.pi / n
+    reach = radius + clearance
+    for k in range(n):
+        for r in (0.3, 0.6, 1.5):
+            ranges = torch.full((1, n), 10.0, dtype=F64)
+            ranges[0, k] = r
+            lo = -math.pi + k * width  # sector k spans [lo, lo + width]
+            bearings = torch.linspace(lo, lo + width, 2001, dtype=F64)
+            x, y = r * torch.cos(bearings), (r * torch.sin(bearings)).abs()
+            hit = (x > 0) & (y < reach)
+            free = torch.where(hit, x - torch.sqrt((reach**2 - y**2).clamp(min=0)), torch.full_like(x, math.inf))
+            want = free.min().clamp(min=0) / dt
+            got = forward_speed_guard(ranges, lidar, radius, clearance, dt)[0]
+            if math.isinf(want):
+                assert math.isinf(got), (k, r)
+            else:
+                assert got.item() == pytest.approx(want.item(), abs=1e-9), (k, r)

@@ -536,6 +536,32 @@ def test_visit_memory_in_the_task_observation_and_resets():
         make_task("arena", n=1, observation={"visit_sectors": 4, "visit_spacing": 0.0})
 
 
+def test_speed_guard_stops_the_robot_short_of_a_wall():
+    from torchnav.config import ConfigError
+
+    runs = {}
+    for clearance in (None, 0.05):
+        task = make_task("empty", n=2, action={"stop_clearance": clearance})
+        state, cur, gen = start(task, seed=0)
+        # Full speed at the wall x = 5 from 3 m away; robot 1 turns as it goes.
+        state = place(task, state, [[2.0, 0.0, 0.0], [2.0, 0.0, 0.3]], [[-4.0, 0.0]] * 2)
+        collided = torch.zeros(2, dtype=torch.bool)
+        for _ in range(80):
+            state, out = task.step(state, torch.tensor([[1.0, 0.0], [1.0, 0.2]]), gen)
+            collided |= out["collision"]
+        runs[clearance] = (collided, state)
+    assert runs[None][0].all()
+    collided, state = runs[0.05]
+    assert not collided.any()
+    # Robot 0 stopped facing the wall, within one step's travel (0.05 m) of radius + clearance. No ray
+    # points straight ahead: the guard keeps its clearance from the returns 4.7 degrees either side,
+    # so the wall between them comes about 1 mm nearer.
+    gap = 5.0 - state.sim.pose[0, 0].item()
+    assert 0.248 <= gap <= 0.25 + 0.05 + 1e-4 and state.sim.vel[0, 0].item() == pytest.approx(0.0, abs=1e-6)
+    with pytest.raises(ConfigError, match="stop_clearance"):
+        make_task("empty", n=1, action={"stop_clearance": -0.1})
+
+
 def test_lidar_noise_changes_ranges_within_bounds():
     clean, noisy = make_task("arena", n=4), make_task("arena", n=4, lidar={"noise_std": 0.5})
     sc, _, gc = start(clean, seed=1)

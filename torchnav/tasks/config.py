@@ -144,6 +144,9 @@ class ObservationConfig:
 class ActionConfig:
     mode: str = "continuous"  # "continuous" in [-1, 1]^2 or "discrete" (one-hot over `discrete_set`)
     forward_only: bool = True  # map a[0] to v in [0, v_max] (else [-v_max, v_max])
+    # m or None: a guard caps the forward speed so that the robot's disc stops this far short of every
+    # lidar return in its path within the step (docs/tasks.md#speed-guard); None: off
+    stop_clearance: float | None = None
     # (v, omega) as fractions of (v_max, omega_max), for mode "discrete"
     discrete_set: tuple[tuple[float, float], ...] = (
         (1.0, 0.0), (1.0, 0.5), (1.0, -0.5), (0.5, 1.0), (0.5, -1.0), (0.0, 1.0), (0.0, -1.0),
@@ -228,6 +231,8 @@ class NavConfig(TaskConfig):
             (0 < c.success_smoothing <= 1, "curriculum.success_smoothing must be in (0, 1]"),
             (self.action.mode in ACTION_MODES, f"action.mode must be one of {ACTION_MODES}, got {self.action.mode!r}"),
             (len(self.action.discrete_set) >= 2, "action.discrete_set needs at least 2 actions"),
+            (self.action.stop_clearance is None or (math.isfinite(self.action.stop_clearance) and self.action.stop_clearance >= 0),
+             f"action.stop_clearance must be null or a finite number of metres >= 0, got {self.action.stop_clearance}"),
             (self.observation.history >= 1, "observation.history must be >= 1"),
             (self.observation.goal_distance_cap is None or (math.isfinite(self.observation.goal_distance_cap) and self.observation.goal_distance_cap > 0),
              f"observation.goal_distance_cap must be null or a finite number of metres > 0, got {self.observation.goal_distance_cap}"),

@@ -16,6 +16,7 @@ from torch import Tensor
 from ..maps import load_map
 from ..maps.free_space import check_room
 from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
+from ..sim.kinematics import forward_speed_guard
 from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
 from ..worlds.guide import GUIDE_CELLS, goal_distance
@@ -257,7 +258,12 @@ class NavTask(BatchedTask):
         ``terms`` (dict of ``(B,)`` weighted reward terms), ``terminated``, ``truncated``,
         ``success``, ``collision`` ``(B,)`` bool.
         """
-        sim = self._sim_step(state.sim, self.command(action), state.world, self.params, generator=generator,
+        twist = self.command(action)
+        if self.cfg.action.stop_clearance is not None:
+            radius = state.env_params.robot_radius if self.randomized else self.params.robot_radius
+            cap = forward_speed_guard(state.sim.ranges, self.params.lidar, radius, self.cfg.action.stop_clearance, self.params.dt)
+            twist = torch.stack((torch.minimum(twist[:, 0], cap), twist[:, 1]), dim=-1)
+        sim = self._sim_step(state.sim, twist, state.world, self.params, generator=generator,
                              env_params=state.env_params if self.randomized else None)
         dist, bearing = self.goal_vector(sim.pose, state.goal)
         collision = sim.collided
