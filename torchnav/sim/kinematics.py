@@ -14,10 +14,9 @@ import torch
 from torch import Tensor
 
 from .math import safe_sinc, wrap_angle
-from .params import SimParams
+from .params import LidarParams, SimParams
 
 if TYPE_CHECKING:
-    from .params import LidarParams
     from .randomize import EnvParams
 
 
@@ -92,7 +91,21 @@ def integrate(pose: Tensor, twist: Tensor, params: SimParams) -> Tensor:
     return integrate_exact(pose, twist, params.dt)
 
 
-def forward_speed_guard(ranges: Tensor, lidar: "LidarParams", radius: Tensor | float, clearance: float, dt: float) -> Tensor:
+def guard_bearings(lidar: LidarParams, dtype: torch.dtype = torch.float32, device: torch.device | str = "cpu") -> Tensor:
+    """For each reading of ``lidar``'s scan, ``(R,)``, the bearing (rad, robot frame) nearest straight
+    ahead at which its return can lie: the ray's own angle, or for the exact sector scan the point
+    of the sector nearest 0 (``forward_speed_guard``)."""
+    if lidar.scan == "sectors":  # sector k spans -fov/2 + [k, k + 1] * fov / n (lidar.lidar_fan)
+        width = lidar.fov / lidar.n_rays
+        centres, half = [-0.5 * lidar.fov + (k + 0.5) * width for k in range(lidar.n_rays)], 0.5 * width
+    else:
+        centres, half = lidar.angles(), 0.0
+    centre = wrap_angle(torch.tensor(centres, dtype=dtype, device=device) + lidar.offset[2])
+    return torch.sign(centre) * (centre.abs() - half).clamp(min=0.0)
+
+
+def forward_speed_guard(ranges: Tensor, lidar: LidarParams, radius: Tensor | float, clearance: float, dt: float,
+                        bearings: Tensor | None = None) -> Tensor:
     """The highest forward speed ``(B,)`` m/s at which a robot disc of ``radius`` m, driving straight
     for ``dt`` s, stays ``clearance`` m short of every return of its last scan ``ranges``
     ``(B, R)`` (``lidar``'s layout) ahead of its centre and nearer its path than ``radius + clearance``;
@@ -103,15 +116,10 @@ def forward_speed_guard(ranges: Tensor, lidar: "LidarParams", radius: Tensor | f
     in the sector nearest straight ahead, the worst case (the distance the disc can drive before
     touching a point at a given range only grows with the point's bearing). Exact for a sensor at
     the robot's centre; an offset sensor's returns are placed from its mount. Straight motion
-    stands in for the step's arc (at 1 m/s and 2 rad/s they part by 1 cm in 0.1 s)."""
-    ox, oy, yaw = lidar.offset
-    if lidar.scan == "sectors":  # sector k spans -fov/2 + [k, k + 1] * fov / n (lidar.lidar_fan)
-        width = lidar.fov / lidar.n_rays
-        centres, half = [-0.5 * lidar.fov + (k + 0.5) * width for k in range(lidar.n_rays)], 0.5 * width
-    else:
-        centres, half = lidar.angles(), 0.0
-    centre = wrap_angle(torch.tensor(centres, dtype=ranges.dtype, device=ranges.device) + yaw)
-    nearest = torch.sign(centre) * (centre.abs() - half).clamp(min=0.0)  # bearing in the sector nearest ahead
+    stands in for the step's arc (at 1 m/s and 2 rad/s they part by 1 cm in 0.1 s). ``bearings``
+    ``(R,)``: ``guard_bearings(lidar)`` as a tensor, built once by a caller that steps many times."""
+    ox, oy, _ = lidar.offset
+    nearest = guard_bearings(lidar, ranges.dtype, ranges.device) if bearings is None else bearings
     x, y = ox + ranges * torch.cos(nearest), (oy + ranges * torch.sin(nearest)).abs()
     reach = torch.as_tensor(radius, dtype=ranges.dtype, device=ranges.device).reshape(-1, 1) + clearance
     blocks = (x > 0) & (y < reach) & (ranges < lidar.max_range)  # a miss reads max_range

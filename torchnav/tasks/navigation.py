@@ -16,7 +16,7 @@ from torch import Tensor
 from ..maps import load_map
 from ..maps.free_space import check_room
 from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
-from ..sim.kinematics import forward_speed_guard
+from ..sim.kinematics import forward_speed_guard, guard_bearings
 from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
 from ..worlds.guide import GUIDE_CELLS, goal_distance
@@ -70,6 +70,7 @@ class NavTask(BatchedTask):
         scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
+        self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device)  # action.stop_clearance
         self._pool: NavState | None = None  # pre-sampled episodes (cfg.reset.pool > 0)
         self._pool_pos = self._pool_passes = 0
         self._sim_step = sim_step
@@ -261,7 +262,8 @@ class NavTask(BatchedTask):
         twist = self.command(action)
         if self.cfg.action.stop_clearance is not None:
             radius = state.env_params.robot_radius if self.randomized else self.params.robot_radius
-            cap = forward_speed_guard(state.sim.ranges, self.params.lidar, radius, self.cfg.action.stop_clearance, self.params.dt)
+            cap = forward_speed_guard(state.sim.ranges, self.params.lidar, radius, self.cfg.action.stop_clearance, self.params.dt,
+                                      self._guard_bearings)
             twist = torch.stack((torch.minimum(twist[:, 0], cap), twist[:, 1]), dim=-1)
         sim = self._sim_step(state.sim, twist, state.world, self.params, generator=generator,
                              env_params=state.env_params if self.randomized else None)
