@@ -95,9 +95,8 @@ def guard_bearings(lidar: LidarParams, dtype: torch.dtype = torch.float32, devic
     """For each reading of ``lidar``'s scan, ``(R,)``, the bearing (rad, robot frame) nearest straight
     ahead at which its return can lie: the ray's own angle, or for the exact sector scan the point
     of the sector nearest 0 (``forward_speed_guard``)."""
-    if lidar.scan == "sectors":  # sector k spans -fov/2 + [k, k + 1] * fov / n (lidar.lidar_fan)
-        width = lidar.fov / lidar.n_rays
-        centres, half = [-0.5 * lidar.fov + (k + 0.5) * width for k in range(lidar.n_rays)], 0.5 * width
+    if lidar.scan == "sectors":
+        centres, half = [lidar.sector_bearing(k + 0.5) for k in range(lidar.n_rays)], 0.5 * lidar.fov / lidar.n_rays
     else:
         centres, half = lidar.angles(), 0.0
     centre = wrap_angle(torch.tensor(centres, dtype=dtype, device=device) + lidar.offset[2])

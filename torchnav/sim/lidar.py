@@ -40,9 +40,8 @@ def lidar_fan(pose: Tensor, lidar: LidarParams) -> RayFan:
     origin, heading = _mount(pose, lidar)
     n = lidar.n_rays
     if lidar.scan == "sectors":
-        width = lidar.fov / n
-        offsets = [-math.pi + i * width for i in range(n)] if lidar.full_circle else [-lidar.fov / 2 + i * width for i in range(n + 1)]
-        spacing = width
+        offsets = [lidar.sector_bearing(i) for i in range(n if lidar.full_circle else n + 1)]
+        spacing = lidar.fov / n
     else:
         offsets = lidar.angles()
         spacing = offsets[1] - offsets[0] if n > 1 else 2 * math.pi

@@ -50,6 +50,12 @@ class LidarParams:
     def full_circle(self) -> bool:
         return self.fov >= 2 * math.pi - 1e-9
 
+    def sector_bearing(self, k: float) -> float:
+        """The exact sector scan's layout: the bearing (rad, sensor frame) ``k`` sector widths past the
+        first sector's edge; sector ``k`` spans ``[sector_bearing(k), sector_bearing(k + 1)]``."""
+        first = -math.pi if self.full_circle else -self.fov / 2
+        return first + k * (self.fov / self.n_rays)
+
     def angles(self) -> list[float]:
         """Ray angles (rad) in the sensor frame, in ray order."""
         n = self.n_rays
