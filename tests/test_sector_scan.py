@@ -132,3 +132,26 @@ def test_backward_is_nan_free_in_dense_worlds():
     lidar = LidarParams(n_rays=20, fov=2 * math.pi, max_range=8.0, scan="sectors", window=0, dense_slots=8)
     lidar_scan(pose, world, lidar).sum().backward()
     assert torch.isfinite(pose.grad).all()
+
+
+def test_sector_bearing_is_the_fan_and_guard_layout():
+    """LidarParams.sector_bearing is the one layout: the fan's sector edges and the guard's sector centres read it."""
+    import math
+
+    from torchnav.sim.kinematics import guard_bearings
+    from torchnav.sim.lidar import lidar_fan
+    from torchnav.sim.params import LidarParams
+
+    for fov, n in ((math.pi, 20), (2 * math.pi, 20), (math.radians(270), 7)):
+        lidar = LidarParams(n_rays=n, fov=fov, scan="sectors")
+        edges = [lidar.sector_bearing(k) for k in range(n + 1)]
+        assert edges[0] == (-math.pi if lidar.full_circle else -fov / 2)
+        assert math.isclose(edges[-1] - edges[0], fov, rel_tol=1e-12)
+        fan = lidar_fan(torch.zeros(1, 3), lidar)
+        assert torch.allclose(fan.angles[0], torch.tensor(edges[: fan.n]), atol=1e-6)
+        # the guard's bearing of a sector lies inside it, at its point nearest straight ahead
+        g = guard_bearings(lidar, torch.float64)
+        for k in range(n):
+            assert edges[k] - 1e-9 <= float(g[k]) <= edges[k + 1] + 1e-9
+            nearest = min(abs(b) for b in (edges[k], edges[k + 1], 0.0) if edges[k] - 1e-9 <= b <= edges[k + 1] + 1e-9)
+            assert math.isclose(abs(float(g[k])), nearest, abs_tol=1e-12)
