@@ -70,7 +70,8 @@ class NavTask(BatchedTask):
         scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
-        self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device)  # action.stop_clearance
+        guarded = cfg.action.stop_clearance is not None
+        self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device) if guarded else None
         self._pool: NavState | None = None  # pre-sampled episodes (cfg.reset.pool > 0)
         self._pool_pos = self._pool_passes = 0
         self._sim_step = sim_step
