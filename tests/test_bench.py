@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 SIM_KEYS = {"device", "num_envs", "mode", "env_steps_per_s", "peak_mem_bytes", "peak_mem_method", "env_steps_per_s_min", "env_steps_per_s_max"}
@@ -87,7 +88,8 @@ def test_dense_lidar_generalist_load():
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-3000:]
     (row,) = _json_lines(p.stdout)
-    assert row["load"] == "generalist" and row["scan"] == "sectors" and row["readings"] == 20
+    lidar = yaml.safe_load((ROOT / "recipes" / "configs" / "ppo_generalist.yaml").read_text())["task"]["lidar"]
+    assert row["load"] == "generalist" and row["scan"] == "sectors" and row["readings"] == lidar["n_rays"] == 36
     assert 0 < row["obstacles"] <= 68 + 70 + 48 and _positive(row["env_steps_per_s"]) and row["exact_envs_frac"] == 1.0
 
 
