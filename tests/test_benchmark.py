@@ -213,3 +213,30 @@ def test_failure_paths_on_a_map_cell_and_its_picture(tmp_path):
     out = tmp_path / "failures.png"
     drawn = failure_paths.picture(ep, "S", "successes", out)
     assert drawn == min(6, ep.outcomes.count("S")) and drawn > 0 and out.stat().st_size > 10_000
+
+
+def test_failure_paths_gap_probe_pins_starts_and_goals():
+    """failure_paths --probe (docs/results.md, "Why: a 0.65 m gap read as a wall"): 168 episodes under
+    the gaps of warehouse's rack row, goals across it; play(pinned=...) starts each episode where the
+    probe puts it, in free space, and refuses pins of the wrong shape or on a generated-world cell."""
+    sys.path.insert(0, str(ROOT / "docs" / "scripts"))
+    failure_paths = importlib.import_module("failure_paths")
+    from torchnav.sim import points_clearance
+
+    starts, goals, rows = failure_paths.gap_probe()
+    assert starts.shape == (168, 3) and goals.shape == (168, 2) and len(rows) == 168
+    assert bool((goals[:, 1] - starts[:, 1] > 2.5).all()) and bool((starts[:, 0].abs() <= 9.7).all())
+    ckpt = ROOT / "checkpoints" / "ppo_generalist_actor.pt"
+    (cell,) = benchmark.suite(["warehouse"], [], {}, benchmark.SEED_BASE)
+    pick = [0, 2, 61, 100, 167]  # other gaps, offsets and headings
+    ep = failure_paths.play(str(ckpt), cell, len(pick), pinned=(starts[pick], goals[pick]))
+    torch.testing.assert_close(ep.goal, goals[pick])
+    torch.testing.assert_close(ep.path[:, 0], (starts[pick, :2] - goals[pick]).norm(dim=-1))  # started at the pinned spot
+    radius = load_policy(ckpt).config().robot.radius
+    assert bool((points_clearance(starts[pick, None, :2], ep.world)[:, 0] > radius).all())
+    with pytest.raises(ValueError, match="pinned starts must be"):
+        failure_paths.play(str(ckpt), cell, 3, pinned=(starts[:2], goals[:2]))
+    levels = benchmark.parse_levels(list(benchmark.DEFAULT_LEVELS))
+    world_cell = benchmark.suite([], ["corridors"], levels, benchmark.SEED_BASE)[0]
+    with pytest.raises(ValueError, match="need a map cell"):
+        failure_paths.play(str(ckpt), world_cell, 2, pinned=(starts[:2], goals[:2]))

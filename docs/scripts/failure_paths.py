@@ -3,6 +3,7 @@ path to the goal (docs/results.md, "Why the walled worlds fail" and "Why warehou
 
     python docs/scripts/failure_paths.py CHECKPOINT --family corridors --difficulty 0.5 --seed 2170819
     python docs/scripts/failure_paths.py CHECKPOINT --map warehouse --picture runs/warehouse_timeouts.png
+    python docs/scripts/failure_paths.py CHECKPOINT --map warehouse --probe
 
 It plays the same episodes as that cell of ``recipes/benchmark.py`` (the cell's seed, episodes and
 config: ``Cell.config``; the suite's seed of the cell unless ``--seed`` is given).
@@ -15,11 +16,20 @@ got; and, for timeouts, how many had stalled (drove less than 1 m in their last 
 got 1 m closer than their start. The outcome string it prints equals the benchmark's ``outcomes``
 for the cell. ``--picture`` draws the first six failed episodes of the given outcome (``--draw``,
 timeouts by default), their last 100 steps in red.
+
+``--probe`` (``warehouse`` only) plays the gap probe of docs/results.md ("Why: a 0.65 m gap read as a
+wall") instead of the cell's episodes: 168 episodes of the cell's config whose starts and goals are
+pinned (``gap_probe``), the robot in the aisle under the rack row with the pillars (y = 0.9 m), under
+each of the row's six 0.65 m gaps and two 0.9 m end gaps, at 0, +-0.5, +-1 and +-2 m along the aisle,
+facing along it (0), up at the row (pi/2) or back (pi), the goal straight across the row in the next
+aisle (y = 3.7 m). It prints how many reached their goal and one line per gap.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -40,6 +50,13 @@ from torchnav.worlds import FAMILIES  # noqa: E402
 
 BACKTRACKS = (0.5, 1.0, 2.0)  # m of path
 
+# The warehouse gap probe (module docstring): x (m) of the gaps in the rack row above the aisle at y = 0.9 m.
+PROBE_GAPS = (-5.575, -4.425, -0.575, 0.575, 4.425, 5.575)  # the 0.65 m gaps beside the row's three pillars
+PROBE_END_GAPS = (-9.55, 9.55)  # the 0.9 m gaps at the row's ends
+PROBE_OFFSETS = (0.0, 0.5, 1.0, 2.0, -0.5, -1.0, -2.0)  # m along the aisle from the gap
+PROBE_HEADINGS = (0.0, math.pi / 2, math.pi)  # rad
+PROBE_START_Y, PROBE_GOAL_Y, PROBE_X_LIMIT = 0.9, 3.7, 9.7  # m; starts past +-9.7 m are moved in to it
+
 
 @dataclass
 class Episodes:
@@ -55,10 +72,44 @@ class Episodes:
     world: World
 
 
+def gap_probe() -> tuple[torch.Tensor, torch.Tensor, list[tuple[float, float, float]]]:
+    """The probe's starts ``(168, 3)`` ``[x, y, heading]``, goals ``(168, 2)`` and, per episode, its
+    ``(gap x, offset, heading)`` (module docstring)."""
+    rows = [(g, o, h) for g in PROBE_GAPS + PROBE_END_GAPS for o in PROBE_OFFSETS for h in PROBE_HEADINGS]
+    starts = torch.tensor([[max(-PROBE_X_LIMIT, min(PROBE_X_LIMIT, g + o)), PROBE_START_Y, h] for g, o, h in rows])
+    goals = torch.tensor([[g, PROBE_GOAL_Y] for g, _, _ in rows])
+    return starts, goals, rows
+
+
+@contextlib.contextmanager
+def _pinned(starts: torch.Tensor, goals: torch.Tensor):
+    """While active, the navigation task's map resets start env ``i`` at ``starts[i]`` with its goal
+    at ``goals[i]`` (the task's start and goal samplers replaced; random objects are placed as usual)."""
+    import torchnav.tasks.navigation as nav
+
+    samplers = nav.sample_starts, nav.sample_goals
+
+    def start(world, *args, **kwargs):
+        n = world.batch_size[0]
+        return starts[:n].to(world.device).clone(), torch.ones(n, dtype=torch.bool, device=world.device)
+
+    def goal(world, *args, **kwargs):
+        n = world.batch_size[0]
+        return goals[:n].to(world.device).clone(), torch.ones(n, dtype=torch.bool, device=world.device)
+
+    nav.sample_starts, nav.sample_goals = start, goal
+    try:
+        yield
+    finally:
+        nav.sample_starts, nav.sample_goals = samplers
+
+
 @torch.no_grad()
-def play(checkpoint: str, cell: Cell, episodes: int) -> Episodes:
+def play(checkpoint: str, cell: Cell, episodes: int, pinned: tuple[torch.Tensor, torch.Tensor] | None = None) -> Episodes:
     """``episodes`` episodes of ``cell`` (a generated-world cell: path distances from the goal grid;
-    a map: straight-line distances)."""
+    a map: straight-line distances). ``pinned`` ``(starts (E, 3), goals (E, 2))`` fixes each episode's
+    start and goal (a map cell only; the reset pool is switched off so that each env's first episode
+    is its own)."""
     sp = load_policy(checkpoint)
     if sp.task != "nav":
         raise SystemExit(f"{checkpoint}: a {sp.task} policy; this script plays navigation policies")
@@ -66,8 +117,16 @@ def play(checkpoint: str, cell: Cell, episodes: int) -> Episodes:
     geodesic = cell.kind == "world"
     if geodesic:
         cfg = NavConfig.from_dict(merge(to_dict(cfg), {"reward": {"progress_distance": "geodesic"}}))
+    if pinned is not None:
+        if cell.kind != "map":
+            raise ValueError("play: pinned starts and goals need a map cell")
+        if pinned[0].shape != (episodes, 3) or pinned[1].shape != (episodes, 2):
+            raise ValueError(f"play: pinned starts must be ({episodes}, 3) and goals ({episodes}, 2), "
+                             f"got {tuple(pinned[0].shape)} and {tuple(pinned[1].shape)}")
+        cfg = NavConfig.from_dict(merge(to_dict(cfg), {"reset": {"pool": 0, "reuse": 1}}))
     env = NavEnv(cfg, num_envs=episodes, device="cpu", seed=cell.seed)
-    td = env.reset()
+    with _pinned(*pinned) if pinned is not None else contextlib.nullcontext():
+        td = env.reset()
     goal = env.state.goal.clone()
     distance = (lambda: env.state.goal_path.clone()) if geodesic else (lambda: (env.state.sim.pose[:, :2] - goal).norm(dim=-1))
     path, xy = [distance()], []
@@ -162,7 +221,10 @@ def main(argv: list[str]) -> None:
     p.add_argument("--picture", type=Path, default=None, help="PNG of the first six episodes ending as --draw")
     p.add_argument("--draw", default="timeout", choices=("collision", "timeout"), help="which failures --picture draws")
     p.add_argument("--threads", type=C.threads_arg, default=1)
+    p.add_argument("--probe", action="store_true", help="play the warehouse gap probe (module docstring) instead of the cell's episodes")
     a = p.parse_args(argv)
+    if a.probe and a.map != "warehouse":
+        p.error("--probe is the warehouse gap probe: give --map warehouse")
     if not 0.0 <= a.difficulty <= 1.0:
         p.error(f"--difficulty must be in [0, 1], got {a.difficulty}")
     if a.episodes < 1:
@@ -179,6 +241,18 @@ def main(argv: list[str]) -> None:
         where = f"{a.family} at difficulty {a.difficulty:g}"
     if a.seed is not None:
         cell = replace(cell, seed=a.seed)
+    if a.probe:
+        starts, goals, rows = gap_probe()
+        ep = play(a.checkpoint, cell, len(rows), pinned=(starts, goals))
+        print(f"{Path(a.checkpoint).name}, warehouse gap probe, seed {cell.seed}: {ep.outcomes.count('S')} of {len(rows)} reached their goal")
+        print("per gap, per offset along the aisle: outcomes facing along it, up at the row, back (S, C, T)")
+        for g in PROBE_GAPS + PROBE_END_GAPS:
+            cols = ["".join(o for o, r in zip(ep.outcomes, rows) if r[0] == g and r[1] == off) for off in PROBE_OFFSETS]
+            print(f"  gap x = {g:+7.3f} m  " + "  ".join(f"{off:+.1f}: {c}" for off, c in zip(PROBE_OFFSETS, cols)))
+        if a.picture is not None:
+            n = picture(ep, a.draw[0].upper(), f"{Path(a.checkpoint).name}, warehouse gap probe: {a.draw}s (last 100 steps red)", a.picture)
+            print(f"wrote {a.picture} ({n} episodes)")
+        return
     ep = play(a.checkpoint, cell, a.episodes)
     print(f"{Path(a.checkpoint).name} on {where}, seed {cell.seed}, {a.episodes} episodes "
           f"({'path' if cell.kind == 'world' else 'straight-line'} distances to the goal)")
