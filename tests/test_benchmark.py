@@ -240,3 +240,6 @@ def test_failure_paths_gap_probe_pins_starts_and_goals():
     world_cell = benchmark.suite([], ["corridors"], levels, benchmark.SEED_BASE)[0]
     with pytest.raises(ValueError, match="need a map cell"):
         failure_paths.play(str(ckpt), world_cell, 2, pinned=(starts[:2], goals[:2]))
+    for argv in ([str(ckpt), "--probe"], [str(ckpt), "--map", "warehouse", "--probe", "--episodes", "5"]):
+        with pytest.raises(SystemExit):  # the probe is warehouse's and plays its own 168 episodes
+            failure_paths.main(argv)

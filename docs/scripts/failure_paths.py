@@ -217,7 +217,7 @@ def main(argv: list[str]) -> None:
     p.add_argument("--map", default=None, choices=sorted(MAP_INDEX), help="a shipped map's cell instead of a family's")
     p.add_argument("--seed", type=int, default=None,
                    help="the cell's env seed (default: the benchmark suite's seed of the cell)")
-    p.add_argument("--episodes", type=int, default=200)
+    p.add_argument("--episodes", type=int, default=None, help="episodes of the cell (default 200; --probe plays its own 168)")
     p.add_argument("--picture", type=Path, default=None, help="PNG of the first six episodes ending as --draw")
     p.add_argument("--draw", default="timeout", choices=("collision", "timeout"), help="which failures --picture draws")
     p.add_argument("--threads", type=C.threads_arg, default=1)
@@ -225,6 +225,9 @@ def main(argv: list[str]) -> None:
     a = p.parse_args(argv)
     if a.probe and a.map != "warehouse":
         p.error("--probe is the warehouse gap probe: give --map warehouse")
+    if a.probe and a.episodes is not None:
+        p.error("--probe plays its own 168 episodes: drop --episodes")
+    a.episodes = 200 if a.episodes is None else a.episodes
     if not 0.0 <= a.difficulty <= 1.0:
         p.error(f"--difficulty must be in [0, 1], got {a.difficulty}")
     if a.episodes < 1:
