@@ -70,6 +70,21 @@ def test_bench_scripts_quick_json():
     assert "collector / raw-sim" in env_log
 
 
+
+def test_sim_ab_compares_two_trees_in_one_process(tmp_path):
+    """bench/sim_ab.py imports a second tree's simulator under another name and times both trees'
+    plain and option steps in turns (eager here, a smoke test); a path without torchnav/sim is refused."""
+    cmd = [sys.executable, str(ROOT / "bench" / "sim_ab.py"), str(ROOT), "--eager", "--envs", "8", "--rounds", "2", "--steps", "2",
+           "--options", "boxmovers4"]
+    out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = [ln.split() for ln in out.stdout.splitlines() if ln.startswith(("this ", "other "))]
+    assert [(r[0], r[1]) for r in rows] == [("this", "plain"), ("this", "boxmovers4"), ("other", "plain"), ("other", "boxmovers4")]
+    for r in rows:
+        assert float(r[2]) > 0 and (r[1] == "plain" or 0 < float(r[4]) < 5)
+    bad = subprocess.run(cmd[:2] + [str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "no torchnav/sim/step.py" in bad.stderr
+
 def test_dense_lidar_quick_json():
     cmd = [sys.executable, str(ROOT / "bench" / "dense_lidar.py"), "--quick", "--json", "--threads", "1", "--cpu-time"]
     p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
