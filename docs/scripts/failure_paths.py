@@ -247,24 +247,21 @@ def main(argv: list[str]) -> None:
     if a.probe:
         starts, goals, rows = gap_probe()
         ep = play(a.checkpoint, cell, len(rows), pinned=(starts, goals))
+        where = "the warehouse gap probe"
         print(f"{Path(a.checkpoint).name}, warehouse gap probe, seed {cell.seed}: {ep.outcomes.count('S')} of {len(rows)} reached their goal")
         print("per gap, per offset along the aisle: outcomes facing along it, up at the row, back (S, C, T)")
         for g in PROBE_GAPS + PROBE_END_GAPS:
             cols = ["".join(o for o, r in zip(ep.outcomes, rows) if r[0] == g and r[1] == off) for off in PROBE_OFFSETS]
             print(f"  gap x = {g:+7.3f} m  " + "  ".join(f"{off:+.1f}: {c}" for off, c in zip(PROBE_OFFSETS, cols)))
-        if a.picture is not None:
-            n = picture(ep, a.draw[0].upper(), f"{Path(a.checkpoint).name}, warehouse gap probe: {a.draw}s (last 100 steps red)", a.picture)
-            print(f"wrote {a.picture} ({n} episodes)")
-        return
-    ep = play(a.checkpoint, cell, a.episodes)
-    print(f"{Path(a.checkpoint).name} on {where}, seed {cell.seed}, {a.episodes} episodes "
-          f"({'path' if cell.kind == 'world' else 'straight-line'} distances to the goal)")
-    print(f"outcomes {ep.outcomes}")
-    report(ep, "path" if cell.kind == "world" else "straight line")
+    else:
+        ep = play(a.checkpoint, cell, a.episodes)
+        print(f"{Path(a.checkpoint).name} on {where}, seed {cell.seed}, {a.episodes} episodes "
+              f"({'path' if cell.kind == 'world' else 'straight-line'} distances to the goal)")
+        print(f"outcomes {ep.outcomes}")
+        report(ep, "path" if cell.kind == "world" else "straight line")
     if a.picture is not None:
         n = picture(ep, a.draw[0].upper(), f"{Path(a.checkpoint).name} on {where}: {a.draw}s (last 100 steps red)", a.picture)
         print(f"wrote {a.picture} ({n} episodes)")
-
 
 if __name__ == "__main__":
     C.main_guard(main)
