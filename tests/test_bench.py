@@ -70,7 +70,6 @@ def test_bench_scripts_quick_json():
     assert "collector / raw-sim" in env_log
 
 
-
 def test_sim_ab_compares_two_trees_in_one_process(tmp_path):
     """bench/sim_ab.py imports a second tree's simulator under another name and times both trees'
     plain and option steps in turns (eager here, a smoke test); a path without torchnav/sim is refused."""
@@ -84,6 +83,7 @@ def test_sim_ab_compares_two_trees_in_one_process(tmp_path):
         assert float(r[2]) > 0 and (r[1] == "plain" or 0 < float(r[4]) < 5)
     bad = subprocess.run(cmd[:2] + [str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert bad.returncode != 0 and "no torchnav/sim/step.py" in bad.stderr
+
 
 def test_dense_lidar_quick_json():
     cmd = [sys.executable, str(ROOT / "bench" / "dense_lidar.py"), "--quick", "--json", "--threads", "1", "--cpu-time"]
