@@ -51,6 +51,26 @@ def _make(kind: str, num_envs: int | None, seed: int | None, device: str, kwargs
     return make_line_env(num_envs=num_envs, device=device, seed=seed, **kwargs)
 
 
+def _episode_options(env: NavEnv | LineEnv, options: dict[str, Any] | None, batch: tuple[int, ...] = ()) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """The ``start`` and ``goal`` of reset ``options`` as ``(B, 3)`` and ``(B, 2)`` tensors (``batch``: the
+    leading shape the caller gives them, reshaped to the env's), or ``None`` without options."""
+    options = dict(options or {})
+    if not options:
+        return None
+    unknown = sorted(set(options) - {"start", "goal"})
+    if unknown or not isinstance(env, NavEnv):
+        takes = "'start' and 'goal'" if isinstance(env, NavEnv) else "no options"
+        raise ValueError(f"reset: unknown options {unknown or sorted(options)}; this env takes {takes}")
+    if "start" not in options or "goal" not in options:
+        raise ValueError("reset: options 'start' and 'goal' go together")
+    b = env.num_envs
+    start, goal = (torch.as_tensor(np.asarray(options[k], dtype=np.float64), dtype=torch.float32) for k in ("start", "goal"))
+    if start.shape != (*batch, 3) or goal.shape != (*batch, 2):
+        raise ValueError(f"reset: options 'start' must have shape {(*batch, 3)} [x, y, heading] and 'goal' {(*batch, 2)}, "
+                         f"got {tuple(start.shape)} and {tuple(goal.shape)}")
+    return start.reshape(b, 3), goal.reshape(b, 2)
+
+
 class TorchnavVectorEnv(VectorEnv):
     """A Gymnasium 1.x vector env over one batched TorchRL env (autoreset ``SAME_STEP``)."""
 
@@ -69,16 +89,21 @@ class TorchnavVectorEnv(VectorEnv):
         """Start a new episode in every env. With ``seed`` (an int; a list uses its first entry:
         the batch shares one generator) the env starts over as if new: its generator is
         re-seeded and the navigation curriculum goes back to its initial state. Without
-        one, both carry on."""
+        one, both carry on.
+
+        ``options`` (navigation only): ``{"start": (num_envs, 3) [x, y, heading], "goal": (num_envs, 2)}``
+        starts these episodes there instead of at sampled places (``NavEnv.reset_to``); any other
+        key is an error."""
         if isinstance(seed, (list, tuple)):
             seed = seed[0] if seed else None
+        given = _episode_options(self.env, options, (self.num_envs,))  # checked before the env changes
         super().reset(seed=seed)
         if seed is not None:
             self.env.set_seed(int(seed))
             self.action_space.seed(int(seed))
             if isinstance(self.env, NavEnv):
                 self.env.restart_curriculum()
-        self._td = self.env.reset()
+        self._td = self.env.reset() if given is None else self.env.reset_to(*given)
         return self._obs(self._td), self._info(self._td)
 
     def _advance(self, action: torch.Tensor) -> TensorDict:
@@ -150,10 +175,12 @@ class TorchnavEnv(gymnasium.Env):
         return self._vec.env
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        given = _episode_options(self.env, options)  # one robot: start (3,), goal (2,); checked before anything changes
+        options = None if given is None else {"start": given[0], "goal": given[1]}
         super().reset(seed=seed)
         if seed is not None:
             self.action_space.seed(int(seed))
-        obs, info = self._vec.reset(seed=seed)
+        obs, info = self._vec.reset(seed=seed, options=options)
         return obs[0], {k: bool(v[0]) for k, v in info.items()}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:

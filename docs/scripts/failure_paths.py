@@ -28,7 +28,6 @@ aisle (y = 3.7 m). It prints how many reached their goal and one line per gap.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import sys
 from dataclasses import dataclass, replace
@@ -81,35 +80,11 @@ def gap_probe() -> tuple[torch.Tensor, torch.Tensor, list[tuple[float, float, fl
     return starts, goals, rows
 
 
-@contextlib.contextmanager
-def _pinned(starts: torch.Tensor, goals: torch.Tensor):
-    """While active, the navigation task's map resets start env ``i`` at ``starts[i]`` with its goal
-    at ``goals[i]`` (the task's start and goal samplers replaced; random objects are placed as usual)."""
-    import torchnav.tasks.navigation as nav
-
-    samplers = nav.sample_starts, nav.sample_goals
-
-    def start(world, *args, **kwargs):
-        n = world.batch_size[0]
-        return starts[:n].to(world.device).clone(), torch.ones(n, dtype=torch.bool, device=world.device)
-
-    def goal(world, *args, **kwargs):
-        n = world.batch_size[0]
-        return goals[:n].to(world.device).clone(), torch.ones(n, dtype=torch.bool, device=world.device)
-
-    nav.sample_starts, nav.sample_goals = start, goal
-    try:
-        yield
-    finally:
-        nav.sample_starts, nav.sample_goals = samplers
-
-
 @torch.no_grad()
 def play(checkpoint: str, cell: Cell, episodes: int, pinned: tuple[torch.Tensor, torch.Tensor] | None = None) -> Episodes:
     """``episodes`` episodes of ``cell`` (a generated-world cell: path distances from the goal grid;
     a map: straight-line distances). ``pinned`` ``(starts (E, 3), goals (E, 2))`` fixes each episode's
-    start and goal (a map cell only; the reset pool is switched off so that each env's first episode
-    is its own)."""
+    start and goal (a map cell only; ``NavEnv.reset_to``)."""
     sp = load_policy(checkpoint)
     if sp.task != "nav":
         raise SystemExit(f"{checkpoint}: a {sp.task} policy; this script plays navigation policies")
@@ -117,16 +92,10 @@ def play(checkpoint: str, cell: Cell, episodes: int, pinned: tuple[torch.Tensor,
     geodesic = cell.kind == "world"
     if geodesic:
         cfg = NavConfig.from_dict(merge(to_dict(cfg), {"reward": {"progress_distance": "geodesic"}}))
-    if pinned is not None:
-        if cell.kind != "map":
-            raise ValueError("play: pinned starts and goals need a map cell")
-        if pinned[0].shape != (episodes, 3) or pinned[1].shape != (episodes, 2):
-            raise ValueError(f"play: pinned starts must be ({episodes}, 3) and goals ({episodes}, 2), "
-                             f"got {tuple(pinned[0].shape)} and {tuple(pinned[1].shape)}")
-        cfg = NavConfig.from_dict(merge(to_dict(cfg), {"reset": {"pool": 0, "reuse": 1}}))
+    if pinned is not None and cell.kind != "map":
+        raise ValueError("play: pinned starts and goals need a map cell")
     env = NavEnv(cfg, num_envs=episodes, device="cpu", seed=cell.seed)
-    with _pinned(*pinned) if pinned is not None else contextlib.nullcontext():
-        td = env.reset()
+    td = env.reset() if pinned is None else env.reset_to(*pinned)  # reset_to checks the shapes
     goal = env.state.goal.clone()
     distance = (lambda: env.state.goal_path.clone()) if geodesic else (lambda: (env.state.sim.pose[:, :2] - goal).norm(dim=-1))
     path, xy = [distance()], []

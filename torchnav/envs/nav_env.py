@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 import torch
+from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Unbounded
 
 from ..deprecation import renamed_function
@@ -21,6 +22,7 @@ class NavEnv(BatchedEnv):
 
     def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0,
                  compile_step: bool = False):
+        self._given: tuple[Any, Any] | None = None  # starts and goals for the next reset (reset_to)
         super().__init__(cfg, num_envs, device, seed)
         if compile_step:  # the simulator step through torch.compile (not TorchRL's `compile`, which compiles the whole env step)
             self.task.compile_step()
@@ -44,7 +46,27 @@ class NavEnv(BatchedEnv):
 
     flag_keys = ("success", "collision")
 
+    def reset_to(self, start: Any, goal: Any, mask: torch.Tensor | None = None) -> TensorDictBase:
+        """:meth:`reset`, with the new episodes starting at the poses ``start`` ``(B, 3)`` ``[x, y, heading]``
+        and their goals at ``goal`` ``(B, 2)`` (m, rad, the map's frame) instead of sampled ones; with a
+        ``mask`` ``(B,)``, only in those envs. The map's random objects and moving obstacles are placed
+        around them as usual, and the curriculum does not move (``NavTask.place_episodes``). Later
+        episodes are sampled again. A map only: procedural worlds bring their own starts and goals.
+
+        Bad starts or goals (shape, not finite, a start within the robot's radius of an obstacle, a
+        goal inside one) raise ``ValueError`` naming the envs, before the env changes."""
+        self._given = (start, goal)
+        try:
+            if mask is None:
+                return self.reset()
+            reset = torch.as_tensor(mask, dtype=torch.bool, device=self.device).reshape(*self.batch_size, 1)
+            return self.reset(TensorDict({"_reset": reset}, batch_size=self.batch_size, device=self.device))
+        finally:
+            self._given = None
+
     def _new_state(self, mask: torch.Tensor | None) -> NavState:
+        if self._given is not None:
+            return self.task.place_episodes(self._state, *self._given, self.curriculum, self._generator, mask)
         if mask is None:
             state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
         else:

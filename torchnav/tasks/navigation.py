@@ -16,6 +16,7 @@ from torch import Tensor
 from ..maps import load_map
 from ..maps.free_space import check_room
 from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
+from ..sim.geometry import points_clearance
 from ..sim.kinematics import forward_speed_guard, guard_bearings
 from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
@@ -148,8 +149,9 @@ class NavTask(BatchedTask):
 
     # -- reset ----------------------------------------------------------------------
 
-    def _fresh(self, idx: Tensor, cur: CurriculumState, generator: torch.Generator) -> NavState:
-        """New episodes for envs ``idx`` ``(n,)``."""
+    def _fresh(self, idx: Tensor, cur: CurriculumState, generator: torch.Generator, given: tuple[Tensor, Tensor] | None = None) -> NavState:
+        """New episodes for envs ``idx`` ``(n,)``; ``given`` ``(start (n, 3), goal (n, 2))`` replaces the
+        sampled starts and goals (a map only, checked by :meth:`place_episodes`)."""
         c, rc = self.cfg, self.cfg.reset
         n = idx.shape[0]
         guide = None
@@ -157,8 +159,11 @@ class NavTask(BatchedTask):
             world, start, goal, family, difficulty, bounds, guide = self._generated(n, cur, generator)
         else:
             world = self.base_world[idx]
-            start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator)
-            goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, generator)
+            if given is None:
+                start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator)
+                goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, generator)
+            else:
+                start, goal = given
             world = place_random_objects(
                 world, self.spec, start[:, :2], goal, rc.candidates, generator,
                 start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance,
@@ -234,6 +239,55 @@ class NavTask(BatchedTask):
         pooled = self.cfg.reset.pool > 0 or self.families  # generating worlds costs the same for 1 env or 1,000
         state, n = self.replace_where(state, mask, lambda idx: self._from_pool(idx.numel(), cur, generator) if pooled else self._fresh(idx, cur, generator))
         return state, (after_placements(cur, self.cfg.curriculum, torch.tensor(n, device=self.device)) if n else cur)
+
+    def place_episodes(self, state: NavState | None, start: Tensor, goal: Tensor, cur: CurriculumState, generator: torch.Generator,
+                       mask: Tensor | None = None) -> NavState:
+        """Episodes that start at the poses ``start`` ``(B, 3)`` ``[x, y, heading]`` with goals at ``goal``
+        ``(B, 2)``, in the envs where ``mask`` ``(B,)`` is True (every env when ``None``, and ``state`` may
+        then be ``None``); the other envs keep their episodes, and their rows of ``start`` and ``goal``
+        are not used. The map's random objects and moving obstacles are placed around them as in a
+        sampled episode. The curriculum does not move: these goals were not drawn from it.
+
+        Raises ``ValueError`` before placing anything if the task generates its worlds (they bring their
+        own starts and goals), if the shapes are wrong or a value is not finite, or if a start lies
+        closer than the robot's radius to the map's obstacles or its edge, or a goal inside an obstacle.
+        """
+        if mask is not None and state is None:
+            raise ValueError("place_episodes: a mask needs the current state (the envs outside it keep their episodes)")
+        idx = torch.arange(self.num_envs, device=self.device) if mask is None else mask.reshape(-1).nonzero().squeeze(-1)
+        start, goal = self.check_episodes(start, goal, idx)
+        fresh = lambda i: self._fresh(i, cur, generator, (start[i], goal[i]))  # noqa: E731
+        return fresh(idx) if mask is None else self.replace_where(state, mask, fresh)[0]
+
+    def check_episodes(self, start: Tensor, goal: Tensor, idx: Tensor | None = None) -> tuple[Tensor, Tensor]:
+        """``start`` ``(B, 3)`` and ``goal`` ``(B, 2)`` as tensors of the task's dtype and device, checked as
+        :meth:`place_episodes` says (only the rows ``idx`` for the clearances); ``ValueError`` names the envs."""
+        if self.families:
+            raise ValueError("place_episodes: this task generates its worlds (worlds.families), and they bring their own starts "
+                             "and goals; given starts and goals need a map (cfg.map)")
+        start = torch.as_tensor(start, dtype=self.dtype, device=self.device)
+        goal = torch.as_tensor(goal, dtype=self.dtype, device=self.device)
+        b = self.num_envs
+        if start.shape != (b, 3) or goal.shape != (b, 2):
+            raise ValueError(f"place_episodes: start must be ({b}, 3) [x, y, heading] and goal ({b}, 2) [x, y], "
+                             f"got {tuple(start.shape)} and {tuple(goal.shape)}")
+        for name, t in (("start", start), ("goal", goal)):
+            bad = (~torch.isfinite(t)).any(-1).nonzero().squeeze(-1).tolist()
+            if bad:
+                raise ValueError(f"place_episodes: {name} is not finite in envs {bad[:10]}")
+        idx = torch.arange(b, device=self.device) if idx is None else idx
+        world = self.base_world[idx]
+        xmin, ymin, xmax, ymax = self.spec.bounds
+        for name, xy, need in (("start", start[idx, :2], self.max_radius), ("goal", goal[idx], 0.0)):
+            edge = torch.stack((xy[:, 0] - xmin, xmax - xy[:, 0], xy[:, 1] - ymin, ymax - xy[:, 1]), -1).amin(-1)
+            clear = torch.minimum(points_clearance(xy[:, None], world)[:, 0], edge)
+            bad = (clear < need) if need > 0 else (clear <= 0)
+            if bad.any():
+                envs = idx[bad].tolist()
+                what = f"closer than the robot's radius {need:g} m to" if need > 0 else "inside"
+                raise ValueError(f"place_episodes: the {name} of envs {envs[:10]} lies {what} an obstacle of map "
+                                 f"{self.cfg.map!r} or its edge (clearance {[round(v, 3) for v in clear[bad][:10].tolist()]} m)")
+        return start, goal
 
     def _from_pool(self, n: int, cur: CurriculumState, generator: torch.Generator) -> NavState:
         """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short; each pooled

@@ -1,0 +1,105 @@
+"""Episodes from given starts and goals: ``NavTask.place_episodes``, ``NavEnv.reset_to`` and Gymnasium's reset options."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from torchnav.envs import NavEnv, make_line_env, make_nav_env
+from torchnav.tasks import NavConfig
+from torchnav.sim.geometry import points_clearance
+
+# warehouse: a shelf (box) centred at (-7.5, -3.3), half extents 1.6 x 0.5; the aisle y = -1.9 between shelf rows is free.
+SHELF = (-7.5, -3.3)
+STARTS = [[-8.0, -1.9, 0.0], [-2.0, -1.9, math.pi / 2], [3.0, -1.9, -1.0], [8.0, -1.9, math.pi]]
+GOALS = [[-5.0, -1.9], [0.5, -1.9], [6.0, -1.9], [4.0, -1.9]]
+
+
+def _env(n=4, **kw):
+    return make_nav_env("warehouse", n, seed=3, **kw)
+
+
+def test_reset_to_starts_and_aims_each_env_where_told():
+    env = _env()
+    env.reset()
+    radius = env.curriculum.radius.clone()
+    td = env.reset_to(torch.tensor(STARTS), torch.tensor(GOALS))
+    s = env.state
+    assert torch.allclose(s.sim.pose, torch.tensor(STARTS)) and torch.allclose(s.start, torch.tensor(STARTS))
+    assert torch.allclose(s.goal, torch.tensor(GOALS)) and torch.allclose(td["goal"], torch.tensor(GOALS))
+    assert torch.allclose(s.goal_dist, (torch.tensor(GOALS) - torch.tensor(STARTS)[:, :2]).norm(dim=-1))
+    assert (s.steps == 0).all() and not s.sim.collided.any()
+    # the map's random objects were placed around the given start (the task's start clearance kept)
+    need = env.task.max_radius + env.cfg.reset.start_clearance
+    assert (points_clearance(s.sim.pose[:, None, :2], s.world)[:, 0] >= need - 1e-5).all()
+    assert torch.equal(env.curriculum.radius, radius)  # the curriculum did not move
+
+
+def test_reset_to_with_a_mask_leaves_the_other_envs_alone_and_later_episodes_are_sampled():
+    env = _env(max_steps=3)
+    env.reset()
+    before = env.state.clone()
+    mask = torch.tensor([True, False, True, False])
+    env.reset_to(torch.tensor(STARTS), torch.tensor(GOALS), mask)
+    s = env.state
+    assert torch.allclose(s.sim.pose[mask], torch.tensor(STARTS)[mask])
+    assert torch.equal(s.sim.pose[~mask], before.sim.pose[~mask]) and torch.equal(s.goal[~mask], before.goal[~mask])
+    td = env.reset()  # no starts given: sampled again
+    assert not torch.allclose(env.state.goal, torch.tensor(GOALS))
+    assert td["observation"].isfinite().all()
+
+
+def test_reset_to_is_reproducible_by_seed():
+    worlds = []
+    for _ in range(2):
+        env = _env()
+        env.reset_to(torch.tensor(STARTS), torch.tensor(GOALS))
+        worlds.append(env.state.world.boxes.clone())
+    assert torch.equal(*worlds)
+
+
+@pytest.mark.parametrize("start,goal,message", [
+    ([[*SHELF, 0.0]] + STARTS[1:], GOALS, r"start of envs \[0\] lies closer than the robot's radius"),
+    (STARTS, [list(SHELF)] + GOALS[1:], r"goal of envs \[0\] lies inside an obstacle"),
+    ([[20.0, 0.0, 0.0]] + STARTS[1:], GOALS, r"start of envs \[0\].*or its edge"),
+    (STARTS[:3], GOALS, r"start must be \(4, 3\)"),
+    (STARTS, [[float("nan"), 0.0]] + GOALS[1:], r"goal is not finite in envs \[0\]"),
+])
+def test_reset_to_refuses_bad_starts_and_goals_before_changing_anything(start, goal, message):
+    env = _env()
+    env.reset()
+    before = env.state.clone()
+    with pytest.raises(ValueError, match=message):
+        env.reset_to(torch.tensor(start), torch.tensor(goal))
+    assert torch.equal(env.state.sim.pose, before.sim.pose)
+
+
+def test_a_masked_out_env_may_hold_a_bad_start():
+    env = _env()
+    env.reset()
+    start = torch.tensor([[*SHELF, 0.0]] + STARTS[1:])
+    env.reset_to(start, torch.tensor(GOALS), torch.tensor([False, True, True, True]))  # env 0 keeps its episode
+    assert torch.allclose(env.state.sim.pose[1:], start[1:])
+
+
+def test_reset_to_needs_a_map():
+    env = NavEnv(NavConfig.from_dict({"worlds": {"families": {"rooms": 1.0}}}), num_envs=2)
+    with pytest.raises(ValueError, match="generates its worlds"):
+        env.reset_to(torch.zeros(2, 3), torch.ones(2, 2))
+
+
+def test_gymnasium_reset_options_place_the_episodes():
+    tg = pytest.importorskip("torchnav.gym")
+    vec = tg.navigation_vector_env(num_envs=4, map="warehouse", seed=3)
+    obs, _ = vec.reset(options={"start": np.array(STARTS), "goal": np.array(GOALS)})
+    assert torch.allclose(vec.env.state.sim.pose, torch.tensor(STARTS)) and obs.shape[0] == 4
+    one = tg.navigation_env(map="warehouse")
+    one.reset(seed=1, options={"start": STARTS[1], "goal": GOALS[1]})
+    assert torch.allclose(one.env.state.goal, torch.tensor([GOALS[1]]))
+    with pytest.raises(ValueError, match=r"unknown options \['speed'\]"):
+        vec.reset(options={"start": STARTS, "goal": GOALS, "speed": 1})
+    with pytest.raises(ValueError, match="go together"):
+        one.reset(options={"start": STARTS[1]})
+    with pytest.raises(ValueError, match="takes no options"):
+        tg.TorchnavVectorEnv(make_line_env(num_envs=2)).reset(options={"start": [[0, 0, 0]] * 2})
