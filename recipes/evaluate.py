@@ -5,6 +5,7 @@ on lap completion from random starts (``--track``, ``--laps``).
     python recipes/evaluate.py                                  # the shipped checkpoint on arena
     python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
     python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to an MCAP file (--record-path)
+    python recipes/evaluate.py CKPT --episodes-file my_episodes.yaml   # given starts and goals (a map)
 
 Accepts the ``actor.pt`` any recipe writes (format ``torchnav-actor-v2``, or ``-v3`` for a recurrent policy; see
 ``torchnav/policy.py``) and the recipes' training checkpoints (``checkpoint.pt``).
@@ -25,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 
 from torchnav.config import merge  # noqa: E402
-from torchnav.evaluation import FINAL_EVAL_SEED  # noqa: E402
+from torchnav.evaluation import FINAL_EVAL_SEED, load_episodes  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
 from torchnav.protocol import PROTOCOLS  # noqa: E402
 
@@ -53,7 +54,10 @@ def main(argv: list[str]) -> dict:
     p.add_argument("checkpoint", nargs="?", default=str(DEFAULT_CHECKPOINT), help="actor.pt or checkpoint.pt (default: the shipped arena policy)")
     p.add_argument("--map", "--track", dest="map", default=None, help="map (navigation) or track (line following) name or YAML path (default: the one it was trained on)")
     p.add_argument("--laps", type=int, default=1, help="line following: laps an episode must complete to succeed (default 1)")
-    p.add_argument("--episodes", type=int, default=1000, help="number of episodes (default 1000)")
+    p.add_argument("--episodes", type=int, default=None, help="number of episodes (default 1000)")
+    p.add_argument("--episodes-file", default=None, metavar="YAML",
+                   help="navigation on a map: play these episodes instead of sampled ones (episodes: [{start: [x, y, heading], goal: [x, y]}, ...], "
+                        "optionally map: NAME; docs/training.md, 'Evaluating')")
     p.add_argument("--seed", type=int, default=FINAL_EVAL_SEED, help="scenario seed (default 20000)")
     p.add_argument("--curriculum", action="store_true", help="keep the training curriculum's goal radius instead of goals anywhere")
     p.add_argument("--device", default="cpu")
@@ -68,6 +72,20 @@ def main(argv: list[str]) -> dict:
     p.add_argument("--realtime", type=float, default=1.0, help="--live pace: simulated seconds per wall-clock second (default 1)")
     p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="task overrides, e.g. max_steps=300 reward.preset=shaped")
     a = p.parse_args(argv)
+    given = None
+    if a.episodes_file:
+        for flag, used in (("--episodes", a.episodes is not None), ("--curriculum", a.curriculum), ("--record", a.record), ("--live", a.live is not None)):
+            if used:
+                p.error(f"{flag} does not go with --episodes-file (the file sets the episodes, their starts and goals)")
+        try:
+            file_map, *given = load_episodes(a.episodes_file)
+        except ValueError as e:
+            p.error(str(e))
+        if file_map is not None and a.map is not None and a.map != file_map:
+            p.error(f"--map {a.map} but {a.episodes_file} was written for map {file_map}")
+        a.map = a.map or file_map
+        a.episodes = len(given[0])
+    a.episodes = 1000 if a.episodes is None else a.episodes
     if a.episodes < 1:
         p.error("--episodes must be >= 1")
     if a.live is not None and not (0 <= a.live <= 65535 and a.live_episodes >= 1 and a.realtime > 0):
@@ -88,15 +106,22 @@ def main(argv: list[str]) -> dict:
         node[parts[-1]] = yaml.safe_load(v)
     P = PROTOCOLS[sp.task]
     config = P.config_class.from_dict(merge(sp.task_config, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
+    if given is not None and (sp.task != "nav" or config.worlds.families):
+        p.error("--episodes-file needs a navigation policy on a map (give --map for one trained on procedural worlds)")
     task = P(config, anywhere=not a.curriculum) if sp.task == "nav" else P(config, laps=a.laps)
     where = getattr(config, P.place)
-    if sp.task == "nav":
+    if given is not None:
+        title = f"{ckpt.name} on {where}, the {a.episodes} episodes of {a.episodes_file}"
+    elif sp.task == "nav":
         title = f"{ckpt.name} on {where}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
     else:
         title = f"{ckpt.name} on {where}, {a.laps} lap(s) from random starts, seed {a.seed}"
-    res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating")
+    res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating", **({} if given is None else {"given": tuple(given)}))
     print(task.format(res, title=title))
-    out = {"checkpoint": str(ckpt), "task": sp.task, "map": where, "seed": a.seed, "episodes": a.episodes, **res}
+    if given is not None:
+        print(f"outcomes per episode (S success, C collision, T timeout): {res['outcomes']}")
+    out = {"checkpoint": str(ckpt), "task": sp.task, "map": where, "seed": a.seed, "episodes": a.episodes,
+           **({} if given is None else {"episodes_file": a.episodes_file}), **res}
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(out, indent=2))

@@ -103,3 +103,70 @@ def test_gymnasium_reset_options_place_the_episodes():
         one.reset(options={"start": STARTS[1]})
     with pytest.raises(ValueError, match="takes no options"):
         tg.TorchnavVectorEnv(make_line_env(num_envs=2)).reset(options={"start": [[0, 0, 0]] * 2})
+
+
+# -- evaluation on given episodes: torchnav.evaluation.load_episodes and recipes/evaluate.py --episodes-file ------------
+
+EPISODES_YAML = """map: arena
+episodes:
+  - start: [-2.0, 0.0, 0.0]
+    goal: [2.0, 0.0]
+  - start: [0.0, -2.0, 1.57]
+    goal: [0.0, 2.5]
+  - start: [1.0, 1.0, 3.14]
+    goal: [-3.0, -3.0]
+"""
+
+
+@pytest.mark.parametrize("text,message", [
+    (None, "no such episodes file"),
+    ("episodes: [", "not valid YAML"),
+    ("map: arena\n", "non-empty list 'episodes'"),
+    ("episodes: [{start: [0, 0, 0], goal: [1, 1]}]\nseed: 3\n", r"unknown keys \['seed'\]"),
+    ("episodes: [{start: [0, 0], goal: [1, 1]}]\n", r"episodes\[0\].start must be 3 finite numbers"),
+    ("episodes: [{start: [0, 0, 0], goal: [.nan, 1]}]\n", r"episodes\[0\].goal must be 2 finite numbers"),
+    ("episodes: [{start: [0, 0, 0], goal: [1, 1], speed: 2}]\n", r"episodes\[0\] must be"),
+    ("map: 3\nepisodes: [{start: [0, 0, 0], goal: [1, 1]}]\n", "'map' must be a map name"),
+])
+def test_load_episodes_names_what_is_wrong(tmp_path, text, message):
+    from torchnav.evaluation import load_episodes
+
+    path = tmp_path / "eps.yaml"
+    if text is not None:
+        path.write_text(text)
+    with pytest.raises(ValueError, match=message):
+        load_episodes(path)
+
+
+def test_run_episodes_plays_the_given_episodes_in_order_across_batches():
+    from torchnav.envs import make_nav_env
+    from torchnav.evaluation import eval_config, run_episodes
+
+    cfg = eval_config(make_nav_env("warehouse", 1).cfg)
+    starts, goals = torch.tensor(STARTS + STARTS[:1]), torch.tensor(GOALS + GOALS[:1])
+    zero = lambda td: td.set("action", torch.zeros(td.batch_size[0], 2))  # noqa: E731
+    res = run_episodes(zero, cfg, 5, max_batch=2, given=(starts, goals))  # batches of 2, 2 and 1
+    torch.testing.assert_close(res["straight_line"], (goals - starts[:, :2]).norm(dim=-1))
+    assert (res["success"].int() + res["collision"].int() + res["timeout"].int() == 1).all()
+    with pytest.raises(ValueError, match="5 episodes, but 4 starts"):
+        run_episodes(zero, cfg, 5, given=(starts[:4], goals[:4]))
+
+
+def test_evaluate_plays_an_episodes_file(tmp_path):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "recipes"))
+    import evaluate
+
+    eps = tmp_path / "eps.yaml"
+    eps.write_text(EPISODES_YAML)
+    out = evaluate.main(["--episodes-file", str(eps), "--threads", "1", "--json", str(tmp_path / "e.json")])
+    assert out["episodes"] == 3 and out["map"] == "arena" and len(out["outcomes"]) == 3 and set(out["outcomes"]) <= set("SCT")
+    assert out["success"]["rate"] == out["outcomes"].count("S") / 3
+    for extra in (["--episodes", "5"], ["--record", "1"], ["--curriculum"], ["--map", "maze"]):
+        with pytest.raises(SystemExit):
+            evaluate.main(["--episodes-file", str(eps), "--threads", "1", *extra])
+    eps.write_text(EPISODES_YAML.replace("[-2.0, 0.0, 0.0]", "[-20.0, 0.0, 0.0]"))  # outside the arena
+    with pytest.raises(ValueError, match=r"start of episodes \[0\]"):  # checked for every episode before any runs
+        evaluate.main(["--episodes-file", str(eps), "--threads", "1"])

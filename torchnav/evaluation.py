@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from functools import partial
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import torch
@@ -131,6 +132,7 @@ def run_batched_episodes(
     seed: int = 0,
     max_batch: int = 4096,
     progress: str | None = None,
+    reset: Callable[[Any, int], TensorDictBase] | None = None,
 ) -> dict[str, torch.Tensor]:
     """The evaluation loop of every task: ``n_episodes`` episodes, one per env, in batches of at
     most ``max_batch`` envs made by ``make_env(num_envs, seed)`` (seeds ``seed + 7919 k``).
@@ -139,7 +141,8 @@ def run_batched_episodes(
     ``outcome(next_td)`` returns ``(ended (B,) bool, values {name: (B,)})`` and each env
     keeps the values of its first step where ``ended`` is True. A policy with a ``bind``
     method is bound to each env first. ``progress``: a label for a progress bar of
-    finished episodes on stderr (``None``: silent).
+    finished episodes on stderr (``None``: silent). ``reset(env, first)`` starts a batch
+    whose first env plays episode ``first`` (default: ``env.reset()``).
     """
     parts: dict[str, list[torch.Tensor]] = {}
     done, chunk = 0, 0
@@ -148,17 +151,17 @@ def run_batched_episodes(
             n = min(max_batch, n_episodes - done)
             env = make_env(n, seed + 7919 * chunk)
             bind_policy(policy, env)
-            for k, v in _until_ended(policy, env, outcome, bar).items():
+            td = env.reset() if reset is None else reset(env, done)
+            for k, v in _until_ended(policy, env, td, outcome, bar).items():
                 parts.setdefault(k, []).append(v.cpu())
             done += n
             chunk += 1
     return {k: torch.cat(v) for k, v in parts.items()}
 
 
-def _until_ended(policy, env, outcome: Outcome, bar) -> dict[str, torch.Tensor]:
+def _until_ended(policy, env, td: TensorDictBase, outcome: Outcome, bar) -> dict[str, torch.Tensor]:
     finished = torch.zeros(env.num_envs, dtype=torch.bool, device=env.device)
     out: dict[str, torch.Tensor] = {}
-    td = env.reset()
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env.cfg.max_steps):
             td = env.step(policy(td))
@@ -196,15 +199,65 @@ def run_episodes(
     device: torch.device | str = "cpu",
     max_batch: int = 4096,
     progress: str | None = None,
+    given: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
     """Run ``n_episodes`` navigation episodes (one per env, in batches of at most ``max_batch`` envs).
 
     A policy with a ``bind`` method is bound to each env created here (``policy.bind(env)``).
+    ``given`` ``(starts (E, 3), goals (E, 2))`` (:func:`load_episodes`) plays those episodes instead
+    of sampled ones (``NavEnv.reset_to``; ``n_episodes`` must be ``E``; a map only).
     Returns per-episode tensors: ``success``, ``collision``, ``timeout`` (bool),
     ``length`` (steps), ``return``, ``path_length`` and ``straight_line`` (m).
     """
+    reset = None
+    if given is not None:
+        starts, goals = given
+        if len(starts) != n_episodes or len(goals) != n_episodes:
+            raise ValueError(f"run_episodes: {n_episodes} episodes, but {len(starts)} starts and {len(goals)} goals given")
+        NavEnv(cfg, num_envs=1, device=device).task.check_places(starts, goals)  # every episode, before any runs
+        reset = lambda env, first: env.reset_to(starts[first : first + env.num_envs], goals[first : first + env.num_envs])  # noqa: E731
     return run_batched_episodes(policy, lambda n, s: NavEnv(cfg, num_envs=n, device=device, seed=s), nav_outcome,
-                                n_episodes, seed, max_batch, progress)
+                                n_episodes, seed, max_batch, progress, reset)
+
+
+EPISODE_KEYS = ("start", "goal")
+
+
+def load_episodes(path: str | Path) -> tuple[str | None, torch.Tensor, torch.Tensor]:
+    """A YAML file of navigation episodes -> ``(map or None, starts (E, 3), goals (E, 2))``.
+
+    The file holds ``episodes:``, a list of ``{start: [x, y, heading], goal: [x, y]}`` (m, rad, the
+    map's frame), and optionally ``map:``, the map they were written for. Anything else, or an entry
+    that is not two lists of 3 and 2 finite numbers, raises ``ValueError`` naming the file and the entry.
+    Whether the places are free is checked against the map when the episodes start (``NavEnv.reset_to``).
+    """
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such episodes file") from None
+    except yaml.YAMLError as e:
+        raise ValueError(f"{path}: not valid YAML ({e})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("episodes"), list) or not data["episodes"]:
+        raise ValueError(f"{path}: expected a mapping with a non-empty list 'episodes' of {{start: [x, y, heading], goal: [x, y]}}")
+    unknown = sorted(set(data) - {"map", "episodes"})
+    if unknown:
+        raise ValueError(f"{path}: unknown keys {unknown}; an episodes file holds 'episodes' and optionally 'map'")
+    if "map" in data and not isinstance(data["map"], str):
+        raise ValueError(f"{path}: 'map' must be a map name or path, got {data['map']!r}")
+    rows: dict[str, list[list[float]]] = {k: [] for k in EPISODE_KEYS}
+    for i, ep in enumerate(data["episodes"]):
+        if not isinstance(ep, dict) or set(ep) != set(EPISODE_KEYS):
+            raise ValueError(f"{path}: episodes[{i}] must be {{start: [x, y, heading], goal: [x, y]}}, got {ep!r}")
+        for key, size in zip(EPISODE_KEYS, (3, 2)):
+            v = ep[key]
+            ok = isinstance(v, list) and len(v) == size and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+            if not ok or not all(math.isfinite(x) for x in v):
+                raise ValueError(f"{path}: episodes[{i}].{key} must be {size} finite numbers, got {v!r}")
+            rows[key].append([float(x) for x in v])
+    return data.get("map"), torch.tensor(rows["start"]), torch.tensor(rows["goal"])
 
 
 def bind_policy(policy: Any, env: Any) -> None:

@@ -47,9 +47,10 @@ class TaskProtocol:
         """The summary of ``episodes`` deterministic evaluation episodes, one per env."""
         raise NotImplementedError
 
-    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
-        """:meth:`run`'s summary plus ``"score"``, the rate of the first outcome (compared with a target)."""
-        s = self.run(policy, episodes, seed, device, progress)
+    def evaluate(self, policy, episodes: int, seed: int, device, progress: str | None = None, **options: Any) -> dict[str, Any]:
+        """:meth:`run`'s summary plus ``"score"``, the rate of the first outcome (compared with a target);
+        ``options`` go to :meth:`run` (navigation: ``given`` starts and goals)."""
+        s = self.run(policy, episodes, seed, device, progress, **options)
         s["score"] = s[self.outcomes[0]]["rate"]
         return s
 
@@ -101,8 +102,15 @@ class NavProtocol(TaskProtocol):
         super().__init__(config, eval_config(config, anywhere=anywhere), compile_step=bool(compile_step))
         self.anywhere = anywhere
 
-    def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
-        return summarize(run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress))
+    def run(self, policy, episodes: int, seed: int, device, progress: str | None = None,
+            given: tuple[Any, Any] | None = None) -> dict[str, Any]:
+        """With ``given`` ``(starts (E, 3), goals (E, 2))`` the summary has ``"outcomes"`` too, one letter
+        per episode in order: ``S`` success, ``C`` collision, ``T`` timeout."""
+        res = run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress, given=given)
+        s = summarize(res)
+        if given is not None:
+            s["outcomes"] = "".join("S" if ok else "C" if hit else "T" for ok, hit in zip(res["success"].tolist(), res["collision"].tolist()))
+        return s
 
     def where(self) -> str:
         w = self.eval_config.worlds

@@ -261,33 +261,42 @@ class NavTask(BatchedTask):
 
     def check_episodes(self, start: Tensor, goal: Tensor, idx: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """``start`` ``(B, 3)`` and ``goal`` ``(B, 2)`` as tensors of the task's dtype and device, checked as
-        :meth:`place_episodes` says (only the rows ``idx`` for the clearances); ``ValueError`` names the envs."""
-        if self.families:
-            raise ValueError("place_episodes: this task generates its worlds (worlds.families), and they bring their own starts "
-                             "and goals; given starts and goals need a map (cfg.map)")
+        :meth:`place_episodes` says (only the rows ``idx`` for the places); ``ValueError`` names the envs."""
         start = torch.as_tensor(start, dtype=self.dtype, device=self.device)
         goal = torch.as_tensor(goal, dtype=self.dtype, device=self.device)
         b = self.num_envs
         if start.shape != (b, 3) or goal.shape != (b, 2):
             raise ValueError(f"place_episodes: start must be ({b}, 3) [x, y, heading] and goal ({b}, 2) [x, y], "
                              f"got {tuple(start.shape)} and {tuple(goal.shape)}")
-        for name, t in (("start", start), ("goal", goal)):
-            bad = (~torch.isfinite(t)).any(-1).nonzero().squeeze(-1).tolist()
-            if bad:
-                raise ValueError(f"place_episodes: {name} is not finite in envs {bad[:10]}")
         idx = torch.arange(b, device=self.device) if idx is None else idx
-        world = self.base_world[idx]
+        self.check_places(start[idx], goal[idx], "envs", idx)
+        return start, goal
+
+    def check_places(self, start: Tensor, goal: Tensor, noun: str = "episodes", names: Tensor | None = None) -> None:
+        """Raise ``ValueError`` unless the task is on a map and every start ``(E, 3)`` and goal ``(E, 2)`` is
+        finite, every start at least the robot's radius from the map's fixed obstacles and edge and every
+        goal outside them (the map's random objects are placed later, around them). The message names
+        the rows as ``noun`` with the indices ``names`` (default ``0 .. E-1``)."""
+        if self.families:
+            raise ValueError("place_episodes: this task generates its worlds (worlds.families), and they bring their own starts "
+                             "and goals; given starts and goals need a map (cfg.map)")
+        start = torch.as_tensor(start, dtype=self.dtype, device=self.device)
+        goal = torch.as_tensor(goal, dtype=self.dtype, device=self.device)
+        names = torch.arange(len(start), device=self.device) if names is None else names
+        for name, t in (("start", start), ("goal", goal)):
+            bad = (~torch.isfinite(t)).any(-1)
+            if bad.any():
+                raise ValueError(f"place_episodes: {name} is not finite in {noun} {names[bad][:10].tolist()}")
+        world = self.base_world[torch.zeros(len(start), dtype=torch.int64, device=self.device)]  # the map's fixed obstacles
         xmin, ymin, xmax, ymax = self.spec.bounds
-        for name, xy, need in (("start", start[idx, :2], self.max_radius), ("goal", goal[idx], 0.0)):
+        for name, xy, need in (("start", start[:, :2], self.max_radius), ("goal", goal, 0.0)):
             edge = torch.stack((xy[:, 0] - xmin, xmax - xy[:, 0], xy[:, 1] - ymin, ymax - xy[:, 1]), -1).amin(-1)
             clear = torch.minimum(points_clearance(xy[:, None], world)[:, 0], edge)
             bad = (clear < need) if need > 0 else (clear <= 0)
             if bad.any():
-                envs = idx[bad].tolist()
                 what = f"closer than the robot's radius {need:g} m to" if need > 0 else "inside"
-                raise ValueError(f"place_episodes: the {name} of envs {envs[:10]} lies {what} an obstacle of map "
+                raise ValueError(f"place_episodes: the {name} of {noun} {names[bad][:10].tolist()} lies {what} an obstacle of map "
                                  f"{self.cfg.map!r} or its edge (clearance {[round(v, 3) for v in clear[bad][:10].tolist()]} m)")
-        return start, goal
 
     def _from_pool(self, n: int, cur: CurriculumState, generator: torch.Generator) -> NavState:
         """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short; each pooled
