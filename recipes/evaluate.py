@@ -74,7 +74,7 @@ def main(argv: list[str]) -> dict:
     a = p.parse_args(argv)
     given = None
     if a.episodes_file:
-        for flag, used in (("--episodes", a.episodes is not None), ("--curriculum", a.curriculum), ("--record", a.record), ("--live", a.live is not None)):
+        for flag, used in (("--episodes", a.episodes is not None), ("--curriculum", a.curriculum)):
             if used:
                 p.error(f"{flag} does not go with --episodes-file (the file sets the episodes, their starts and goals)")
         try:
@@ -85,6 +85,9 @@ def main(argv: list[str]) -> dict:
             p.error(f"--map {a.map} but {a.episodes_file} was written for map {file_map}")
         a.map = a.map or file_map
         a.episodes = len(given[0])
+        for flag, n in (("--record", a.record), ("--live-episodes", a.live_episodes if a.live is not None else 0)):
+            if n > a.episodes:
+                p.error(f"{flag} {n}: {a.episodes_file} holds {a.episodes} episodes (it records the first ones)")
     a.episodes = 1000 if a.episodes is None else a.episodes
     if a.episodes < 1:
         p.error("--episodes must be >= 1")
@@ -126,9 +129,12 @@ def main(argv: list[str]) -> dict:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(out, indent=2))
         print(f"wrote {a.json}")
+    def first_of(n: int):  # with --episodes-file: recorded episodes are the file's first n
+        return None if given is None else (lambda env: env.reset_to(given[0][:n], given[1][:n]))
+
     if a.record:
         path = Path(a.record_path) if a.record_path else default_record_path(ckpt, where)
-        rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where})
+        rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where}, first_of(a.record))
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
     if a.live is not None:
         from torchnav.record import LiveView
@@ -139,7 +145,7 @@ def main(argv: list[str]) -> dict:
                   "layout docs/foxglove_layout.json); Ctrl-C stops", flush=True)
             return view
 
-        task.record_with(actor, a.live_episodes, a.seed, a.device, live_view)
+        task.record_with(actor, a.live_episodes, a.seed, a.device, live_view, first_of(a.live_episodes))
     return out
 
 

@@ -164,7 +164,15 @@ def test_evaluate_plays_an_episodes_file(tmp_path):
     out = evaluate.main(["--episodes-file", str(eps), "--threads", "1", "--json", str(tmp_path / "e.json")])
     assert out["episodes"] == 3 and out["map"] == "arena" and len(out["outcomes"]) == 3 and set(out["outcomes"]) <= set("SCT")
     assert out["success"]["rate"] == out["outcomes"].count("S") / 3
-    for extra in (["--episodes", "5"], ["--record", "1"], ["--curriculum"], ["--map", "maze"]):
+    mcap = tmp_path / "eps.mcap"
+    evaluate.main(["--episodes-file", str(eps), "--threads", "1", "--record", "2", "--record-path", str(mcap)])
+    from torchnav.record.reader import read_recording
+    from torchnav.record.replay import episode_frames
+
+    rec = read_recording(mcap)
+    starts = [episode_frames(rec, ep)["pose"][0] for ep in sorted(rec.episodes(), key=lambda e: e.env)]
+    np.testing.assert_allclose(starts, [[-2.0, 0.0, 0.0], [0.0, -2.0, 1.57]], atol=1e-5)  # the file's first two episodes
+    for extra in (["--episodes", "5"], ["--record", "4"], ["--curriculum"], ["--map", "maze"]):
         with pytest.raises(SystemExit):
             evaluate.main(["--episodes-file", str(eps), "--threads", "1", *extra])
     eps.write_text(EPISODES_YAML.replace("[-2.0, 0.0, 0.0]", "[-20.0, 0.0, 0.0]"))  # outside the arena

@@ -390,8 +390,10 @@ def record_episodes(
     return record_to_file(policy, NavEnv(cfg, num_envs=n_episodes, device=device, seed=seed), path, seed, metadata)
 
 
-def record_to_file(policy: Callable[[TensorDictBase], TensorDictBase], env: Any, path, seed: int = 0, metadata: dict[str, Any] | None = None) -> Any:
-    """One deterministic episode per env of ``env`` (any task) written to the MCAP file ``path``.
+def record_to_file(policy: Callable[[TensorDictBase], TensorDictBase], env: Any, path, seed: int = 0, metadata: dict[str, Any] | None = None,
+                   reset: Callable[[Any], TensorDictBase] | None = None) -> Any:
+    """One deterministic episode per env of ``env`` (any task) written to the MCAP file ``path``
+    (``reset`` as for :func:`record_with`).
 
     Returns the recorder (its ``error`` is set, and a warning was issued, if the file
     could not be written; training code can carry on).
@@ -399,16 +401,19 @@ def record_to_file(policy: Callable[[TensorDictBase], TensorDictBase], env: Any,
     from .record import EpisodeRecorder
 
     meta = {"seed": seed, **(metadata or {})}
-    return record_with(policy, env, lambda e: EpisodeRecorder(path, e, envs=range(e.num_envs), metadata=meta, episodes=1))
+    return record_with(policy, env, lambda e: EpisodeRecorder(path, e, envs=range(e.num_envs), metadata=meta, episodes=1), reset)
 
 
 @torch.no_grad()
-def record_with(policy: Callable[[TensorDictBase], TensorDictBase], env: Any, make_recorder: Callable[[Any], Any]) -> Any:
+def record_with(policy: Callable[[TensorDictBase], TensorDictBase], env: Any, make_recorder: Callable[[Any], Any],
+                reset: Callable[[Any], TensorDictBase] | None = None) -> Any:
     """One deterministic episode per env of ``env`` (any task), written by ``make_recorder(env)``:
-    an ``EpisodeRecorder`` to an MCAP file or a ``LiveView``. Returns the recorder."""
+    an ``EpisodeRecorder`` to an MCAP file or a ``LiveView``. ``reset(env)`` starts the episodes
+    (default ``env.reset()``; e.g. ``NavEnv.reset_to`` for given starts and goals). Returns the recorder."""
     from .record import record_rollout
 
     bind_policy(policy, env)
     with make_recorder(env) as rec, set_exploration_type(ExplorationType.DETERMINISTIC):
-        record_rollout(env, policy, max_steps=env.cfg.max_steps, recorder=rec, stack=False)
+        td = None if reset is None else reset(env)
+        record_rollout(env, policy, max_steps=env.cfg.max_steps, recorder=rec, tensordict=td, stack=False)
     return rec

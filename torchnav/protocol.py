@@ -62,13 +62,16 @@ class TaskProtocol:
         """The summary as a text table."""
         raise NotImplementedError
 
-    def record_with(self, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any]) -> Any:
-        """``torchnav.evaluation.record_with`` on ``eval_env(episodes, ...)`` (an MCAP file or a ``LiveView``)."""
-        return record_with(policy, self.eval_env(episodes, device, seed), make_recorder)
+    def record_with(self, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any],
+                    reset: Callable[[Any], Any] | None = None) -> Any:
+        """``torchnav.evaluation.record_with`` on ``eval_env(episodes, ...)`` (an MCAP file or a ``LiveView``;
+        ``reset(env)`` starts the episodes, default ``env.reset()``)."""
+        return record_with(policy, self.eval_env(episodes, device, seed), make_recorder, reset)
 
-    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict | None = None) -> Any:
+    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict | None = None,
+               reset: Callable[[Any], Any] | None = None) -> Any:
         """``episodes`` deterministic evaluation episodes written to the MCAP file ``path``; returns the recorder."""
-        return record_to_file(policy, self.eval_env(episodes, device, seed), path, seed, metadata)
+        return record_to_file(policy, self.eval_env(episodes, device, seed), path, seed, metadata, reset)
 
     def status(self, env) -> str:
         """A short progress-bar field of a training env (the curriculum), or ``""``."""
