@@ -52,7 +52,7 @@ def default_record_path(ckpt: Path, where: str) -> Path:
 def main(argv: list[str]) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", nargs="?", default=str(DEFAULT_CHECKPOINT), help="actor.pt or checkpoint.pt (default: the shipped arena policy)")
-    p.add_argument("--map", "--track", dest="map", default=None, help="map (navigation) or track (line following) name or YAML path (default: the one it was trained on)")
+    p.add_argument("--map", "--track", dest="map", default=None, help="map (navigation) or track (line following) name or YAML path (default: where it was trained: its map, or its procedural worlds at their top difficulty)")
     p.add_argument("--laps", type=int, default=1, help="line following: laps an episode must complete to succeed (default 1)")
     p.add_argument("--episodes", type=int, default=None, help="number of episodes (default 1000)")
     p.add_argument("--episodes-file", default=None, metavar="YAML",
@@ -108,11 +108,16 @@ def main(argv: list[str]) -> dict:
             node = node.setdefault(part, {})
         node[parts[-1]] = yaml.safe_load(v)
     P = PROTOCOLS[sp.task]
-    config = P.config_class.from_dict(merge(sp.task_config, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
-    if given is not None and (sp.task != "nav" or config.worlds.families):
+    if sp.task == "nav":  # the protocol moves it to the map (eval_config: procedural worlds off)
+        config = P.config_class.from_dict(merge(sp.task_config, over), where="--set")
+        task = P(config, anywhere=not a.curriculum, map=a.map)
+    else:
+        config = P.config_class.from_dict(merge(sp.task_config, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
+        task = P(config, laps=a.laps)
+    where = task.where()  # what is evaluated: a map, a track, or procedural worlds at a difficulty
+    generated = sp.task == "nav" and bool(task.eval_config.worlds.families)
+    if given is not None and (sp.task != "nav" or generated):
         p.error("--episodes-file needs a navigation policy on a map (give --map for one trained on procedural worlds)")
-    task = P(config, anywhere=not a.curriculum) if sp.task == "nav" else P(config, laps=a.laps)
-    where = getattr(config, P.place)
     if given is not None:
         title = f"{ckpt.name} on {where}, the {a.episodes} episodes of {a.episodes_file}"
     elif sp.task == "nav":
@@ -133,7 +138,7 @@ def main(argv: list[str]) -> dict:
         return None if given is None else (lambda env: env.reset_to(given[0][:n], given[1][:n]))
 
     if a.record:
-        path = Path(a.record_path) if a.record_path else default_record_path(ckpt, where)
+        path = Path(a.record_path) if a.record_path else default_record_path(ckpt, "worlds" if generated else where)
         rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where}, first_of(a.record))
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
     if a.live is not None:

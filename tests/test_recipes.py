@@ -444,3 +444,15 @@ def test_generalist_recipe_on_cuda(tmp_path):
     assert res["frames"] == 512
     summary = json.loads((run / "summary.json").read_text())
     assert summary["eval"]["episodes"] == 16
+
+
+def test_evaluate_moves_a_generalist_to_the_map_it_is_given():
+    """--map on a policy trained on procedural worlds evaluates on that map (eval_config turns the worlds off);
+    without it, on its worlds, and the title and JSON say which."""
+    import evaluate
+
+    ckpt = str(ROOT / "checkpoints" / "ppo_generalist_actor.pt")
+    on_map = evaluate.main([ckpt, "--map", "empty", "--episodes", "4", "--threads", "1"])
+    assert on_map["map"] == "empty"
+    on_worlds = evaluate.main([ckpt, "--episodes", "4", "--threads", "1"])
+    assert on_worlds["map"].startswith("worlds ") and "at difficulty" in on_worlds["map"]

@@ -97,12 +97,15 @@ class NavProtocol(TaskProtocol):
     outcome_keys = ("success", "collision")
     outcomes = ("success", "collision", "timeout")
 
-    def __init__(self, config: NavConfig, anywhere: bool = True, compile_step: bool = False) -> None:
-        if not config.worlds.families:
+    def __init__(self, config: NavConfig, anywhere: bool = True, compile_step: bool = False, map: str | None = None) -> None:
+        """``map``: evaluate on that map instead of where ``config`` trains (for a policy trained on
+        procedural worlds too: ``eval_config`` turns them off)."""
+        evaluation = eval_config(config, map=map, anywhere=anywhere)
+        if not evaluation.worlds.families:
             from .maps import load_map
 
-            load_map(config.map)  # an unknown or malformed map is named now, before any run starts
-        super().__init__(config, eval_config(config, anywhere=anywhere), compile_step=bool(compile_step))
+            load_map(evaluation.map)  # an unknown or malformed map is named now, before any run starts
+        super().__init__(config, evaluation, compile_step=bool(compile_step))
         self.anywhere = anywhere
 
     def run(self, policy, episodes: int, seed: int, device, progress: str | None = None,
@@ -117,7 +120,7 @@ class NavProtocol(TaskProtocol):
 
     def where(self) -> str:
         w = self.eval_config.worlds
-        return f"worlds {'+'.join(w.families)} at difficulty {w.difficulty:g}" if w.families else self.config.map
+        return f"worlds {'+'.join(w.families)} at difficulty {w.difficulty:g}" if w.families else self.eval_config.map
 
     def format(self, s: dict[str, Any], title: str | None = None) -> str:
         goals = "goals anywhere" if self.anywhere else "the training curriculum's goals"
@@ -162,7 +165,7 @@ PROTOCOLS: dict[str, type[TaskProtocol]] = {p.name: p for p in (NavProtocol, Lin
 
 
 def task_protocol(config: NavConfig | LineConfig, **options: Any) -> TaskProtocol:
-    """The protocol of a task config: ``NavProtocol(config, anywhere=, compile_step=)`` or
+    """The protocol of a task config: ``NavProtocol(config, anywhere=, compile_step=, map=)`` or
     ``LineProtocol(config, laps=)``."""
     for p in PROTOCOLS.values():
         if isinstance(config, p.config_class):
