@@ -53,7 +53,7 @@ def main(argv: list[str]) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", nargs="?", default=str(DEFAULT_CHECKPOINT), help="actor.pt or checkpoint.pt (default: the shipped arena policy)")
     p.add_argument("--map", "--track", dest="map", default=None, help="map (navigation) or track (line following) name or YAML path (default: where it was trained: its map, or its procedural worlds at their top difficulty)")
-    p.add_argument("--laps", type=int, default=1, help="line following: laps an episode must complete to succeed (default 1)")
+    p.add_argument("--laps", type=int, default=None, help="line following: laps an episode must complete to succeed (default 1)")
     p.add_argument("--episodes", type=int, default=None, help="number of episodes (default 1000)")
     p.add_argument("--episodes-file", default=None, metavar="YAML",
                    help="navigation on a map: play these episodes instead of sampled ones (episodes: [{start: [x, y, heading], goal: [x, y]}, ...], "
@@ -108,22 +108,27 @@ def main(argv: list[str]) -> dict:
             node = node.setdefault(part, {})
         node[parts[-1]] = yaml.safe_load(v)
     P = PROTOCOLS[sp.task]
+    for flag, used, task_kind in (("--laps", a.laps is not None, "line"), ("--curriculum", a.curriculum, "nav"), ("--episodes-file", given is not None, "nav")):
+        if used and sp.task != task_kind:
+            p.error(f"{flag} is for {'line-following' if task_kind == 'line' else 'navigation'} policies; {ckpt} is a {sp.task!r} policy")
+    if a.laps is not None and a.laps < 1:
+        p.error("--laps must be >= 1")
     if sp.task == "nav":  # the protocol moves it to the map (eval_config: procedural worlds off)
         config = P.config_class.from_dict(merge(sp.task_config, over), where="--set")
         task = P(config, anywhere=not a.curriculum, map=a.map)
     else:
         config = P.config_class.from_dict(merge(sp.task_config, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
-        task = P(config, laps=a.laps)
+        task = P(config, laps=a.laps or 1)
     where = task.where()  # what is evaluated: a map, a track, or procedural worlds at a difficulty
     generated = sp.task == "nav" and bool(task.eval_config.worlds.families)
-    if given is not None and (sp.task != "nav" or generated):
-        p.error("--episodes-file needs a navigation policy on a map (give --map for one trained on procedural worlds)")
+    if given is not None and generated:
+        p.error("--episodes-file needs a map: give --map for a policy trained on procedural worlds")
     if given is not None:
         title = f"{ckpt.name} on {where}, the {a.episodes} episodes of {a.episodes_file}"
     elif sp.task == "nav":
         title = f"{ckpt.name} on {where}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
     else:
-        title = f"{ckpt.name} on {where}, {a.laps} lap(s) from random starts, seed {a.seed}"
+        title = f"{ckpt.name} on {where}, {a.laps or 1} lap(s) from random starts, seed {a.seed}"
     res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating", **({} if given is None else {"given": tuple(given)}))
     print(task.format(res, title=title))
     if given is not None:

@@ -96,6 +96,7 @@ def test_numbers_are_coerced_sensibly():
         ({"lidar": {"max_range": 0.0}}, "robot/lidar: lidar needs 0 <= min_range < max_range"),
         ({"robot": {"dt": 0.0}}, "robot/lidar: dt must be > 0"),
         ({"robot": {"integrator": "rk4"}}, "robot/lidar"),
+        ({"map": "warehouse", "worlds": {"families": {"rooms": 1.0}}}, "map: 'warehouse' is not used when worlds.families is set"),
     ],
 )
 def test_invalid_values_raise_config_error(data, msg):

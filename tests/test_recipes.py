@@ -456,3 +456,20 @@ def test_evaluate_moves_a_generalist_to_the_map_it_is_given():
     assert on_map["map"] == "empty"
     on_worlds = evaluate.main([ckpt, "--episodes", "4", "--threads", "1"])
     assert on_worlds["map"].startswith("worlds ") and "at difficulty" in on_worlds["map"]
+
+
+def test_evaluate_refuses_options_of_the_other_task(tmp_path, capsys):
+    """--laps means nothing to a navigation policy, --curriculum and --episodes-file nothing to a line-following one:
+    each is an error, not silently dropped."""
+    import evaluate
+
+    with pytest.raises(SystemExit):
+        evaluate.main([str(ROOT / "checkpoints" / "td3_arena_actor.pt"), "--laps", "2", "--episodes", "2", "--threads", "1"])
+    assert "--laps is for line-following policies" in capsys.readouterr().err
+    eps = tmp_path / "eps.yaml"
+    eps.write_text("episodes: [{start: [0, 0, 0], goal: [1, 1]}]\n")
+    line = str(ROOT / "checkpoints" / "ppo_course_actor.pt")  # a line-following policy
+    for extra in (["--curriculum"], ["--episodes-file", str(eps)]):
+        with pytest.raises(SystemExit):
+            evaluate.main([line, *extra, "--threads", "1"])
+        assert "is for navigation policies" in capsys.readouterr().err

@@ -14,6 +14,8 @@ from ..config import ConfigError, TaskConfig, fields_as
 from ..sim import RANDOMIZED, CameraParams, ImuParams, LidarParams, SimParams
 from ..sim.randomize import check_ranges
 
+DEFAULT_MAP = "arena"  # NavConfig.map's default; with worlds.families the map must stay at it (it is not used)
+
 CURRICULUM_MODES = ("growth", "success", "off")
 ACTION_MODES = ("continuous", "discrete")
 
@@ -203,7 +205,7 @@ class WorldsConfig:
 
 @dataclass(frozen=True)
 class NavConfig(TaskConfig):
-    map: str = "arena"  # shipped map name or path to a map YAML
+    map: str = DEFAULT_MAP  # shipped map name or path to a map YAML (unused with worlds.families, which must then leave it at the default)
     max_steps: int = 500  # steps before truncation
     goal_tolerance: float = 0.3  # m, success when the robot centre is this close to the goal
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
@@ -258,6 +260,9 @@ class NavConfig(TaskConfig):
              "reward.progress_distance: geodesic needs worlds.families (the distances come from each generated world's wavefront)"),
             (all(v >= 0 for v in w.families.values()) and (not w.families or sum(w.families.values()) > 0),
              f"worlds.families weights must be >= 0 with a positive sum, got {w.families}"),
+            (not w.families or self.map == DEFAULT_MAP,
+             f"map: {self.map!r} is not used when worlds.families is set (procedural worlds bring their own); mix it in as "
+             f"the family \"map:{self.map}\", or clear worlds.families to train on the map"),
         ]
         self.require(checks)
         for name in w.families:
