@@ -117,6 +117,9 @@ def test_eval_config_replaces_worlds_and_maps_turn_them_off():
     assert arena.map == "arena" and arena.worlds.families == {}
     with pytest.raises(ValueError, match="not both"):
         eval_config(trained, map="arena", worlds={"difficulty": 0.5})
+    # a policy trained on another map plays family cells too (its map is not used there)
+    on_maze = eval_config(NavConfig.from_dict({"map": "maze"}), worlds={"families": {"forest": 1.0}, "difficulty": 0.5})
+    assert on_maze.worlds.families == {"forest": 1.0} and on_maze.map == "arena"
     # training's shares of easier episodes never reach evaluation: each cell plays its own difficulty
     mixed = NavConfig.from_dict({"worlds": {"families": {"rooms": 1.0}, "curriculum": True, "max_difficulty": 0.8,
                                             "anywhere_goals": 0.3, "below_level": 0.5}})

@@ -20,6 +20,7 @@ from tqdm.auto import tqdm
 from .config import merge, to_dict
 from .envs import LineEnv, NavEnv
 from .tasks import LineConfig, NavConfig
+from .tasks.config import DEFAULT_MAP
 
 Z95 = 1.959964
 # Scenario seeds, offset by a run's seed: training envs use the run's seed itself, periodic
@@ -105,6 +106,8 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
     plain = {"anywhere_goals": 0.0, "below_level": 0.0}
     if worlds is not None:
         d["worlds"] = {**d["worlds"], **plain, **worlds, "curriculum": False}
+        if d["worlds"]["families"]:
+            over["map"] = DEFAULT_MAP  # the policy's own map is not used on procedural worlds (NavConfig requires the default)
     if randomize_off:
         names = list(d["randomize"]) if randomize_off is True else list(randomize_off)
         unknown = [k for k in names if k not in d["randomize"]]
