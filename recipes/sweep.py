@@ -189,6 +189,8 @@ def main(argv: list[str] | None = None) -> Any:
         return aggregate(Path(a.out))
     if a.workers < 1:
         p.error("--workers must be >= 1")
+    if a.slurm_partition and a.cluster != "slurm":
+        p.error(f"--slurm-partition needs --cluster slurm (got --cluster {a.cluster})")
     return launch(a)
 
 

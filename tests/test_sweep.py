@@ -42,3 +42,6 @@ def test_sweep_refuses_bad_values_before_launching(tmp_path):
     with pytest.raises(ConfigError, match="train.lr_actor"):
         sweep.main(["run", "td3_lidar", "--seeds", "0", "--grid", "train.lr_actor=0.001,-1", "--out", str(tmp_path / "s")])
     assert not (tmp_path / "s").exists()
+    with pytest.raises(SystemExit):  # a Slurm partition on the local executor would be dropped
+        sweep.main(["run", "td3_lidar", "--seeds", "0", "--slurm-partition", "gpu", "--out", str(tmp_path / "s")])
+    assert not (tmp_path / "s").exists()
