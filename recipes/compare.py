@@ -34,7 +34,7 @@ import _common as C
 from torchnav.config import to_dict
 from torchnav.controllers import CONTROLLERS, make_controller
 from torchnav.envs import NavEnv
-from torchnav.evaluation import FINAL_EVAL_SEED, bind_policy, eval_config, run_episodes, summarize
+from torchnav.evaluation import FINAL_EVAL_SEED, bind_policy, eval_config, outcome_letter, outcome_letters, run_episodes, summarize
 from torchnav.maps import MapError, load_map
 from torchnav.policy import load_policy
 from torchnav.tasks import NavConfig
@@ -91,11 +91,6 @@ def method_configs(methods: list[tuple[str, Any, NavConfig | None]], base: NavCo
     return out
 
 
-def outcome_letter(success: bool, collision: bool) -> str:
-    """An episode's outcome as one letter: S success, C collision, T timeout."""
-    return "S" if success else "C" if collision else "T"
-
-
 def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed: int, device: str,
                     where: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
     """``summarize`` of ``episodes`` episodes of ``policy`` on ``cfg`` and, for a planner, its statistics
@@ -106,7 +101,7 @@ def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed:
     res = run_episodes(policy, cfg, episodes, seed=seed, device=device)
     s = summarize(res)
     # each episode's outcome (S success, C collision, T timeout), for paired comparisons of methods
-    s["outcomes"] = "".join(map(outcome_letter, res["success"].tolist(), res["collision"].tolist()))
+    s["outcomes"] = outcome_letters(res)
     stats = getattr(policy, "stats", None)
     if stats is not None:
         stats = {**stats, "ms_per_plan": 1e3 * stats["seconds"] / max(stats["plans"], 1)}

@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 
 from .config import merge, to_dict
 from .envs import LineEnv, NavEnv
-from .tasks import LineConfig, NavConfig
+from .tasks import LineConfig, NavConfig, NavTask
 from .tasks.config import DEFAULT_MAP
 
 Z95 = 1.959964
@@ -194,6 +194,16 @@ def nav_outcome(nxt: TensorDictBase) -> tuple[torch.Tensor, dict[str, torch.Tens
     }
 
 
+def outcome_letter(success: bool, collision: bool) -> str:
+    """An episode's outcome as one letter: S success, C collision, T timeout."""
+    return "S" if success else "C" if collision else "T"
+
+
+def outcome_letters(res: Mapping[str, torch.Tensor]) -> str:
+    """The outcome letter of each episode of :func:`run_episodes`' result, in order."""
+    return "".join(map(outcome_letter, res["success"].tolist(), res["collision"].tolist()))
+
+
 def run_episodes(
     policy: Callable[[TensorDictBase], TensorDictBase],
     cfg: NavConfig,
@@ -217,7 +227,7 @@ def run_episodes(
         starts, goals = given
         if len(starts) != n_episodes or len(goals) != n_episodes:
             raise ValueError(f"run_episodes: {n_episodes} episodes, but {len(starts)} starts and {len(goals)} goals given")
-        NavEnv(cfg, num_envs=1, device=device).task.check_places(starts, goals)  # every episode, before any runs
+        NavTask(cfg, 1, device=device).check_places(starts, goals)  # every episode, before any runs
         reset = lambda env, first: env.reset_to(starts[first : first + env.num_envs], goals[first : first + env.num_envs])  # noqa: E731
     return run_batched_episodes(policy, lambda n, s: NavEnv(cfg, num_envs=n, device=device, seed=s), nav_outcome,
                                 n_episodes, seed, max_batch, progress, reset)

@@ -16,7 +16,7 @@ from typing import Any, Callable
 from .config import to_dict
 from .envs import LineEnv, NavEnv
 from .envs.base import BatchedEnv
-from .evaluation import (eval_config, format_lap_summary, format_summary, record_to_file, record_with, run_episodes, run_line_episodes,
+from .evaluation import (eval_config, format_lap_summary, format_summary, outcome_letters, record_to_file, record_with, run_episodes, run_line_episodes,
                          summarize, summarize_laps)
 from .tasks import LineConfig, NavConfig
 
@@ -115,7 +115,7 @@ class NavProtocol(TaskProtocol):
         res = run_episodes(policy, self.eval_config, episodes, seed=seed, device=device, progress=progress, given=given)
         s = summarize(res)
         if given is not None:
-            s["outcomes"] = "".join("S" if ok else "C" if hit else "T" for ok, hit in zip(res["success"].tolist(), res["collision"].tolist()))
+            s["outcomes"] = outcome_letters(res)
         return s
 
     def where(self) -> str:

@@ -42,6 +42,7 @@ from benchmark import DEFAULT_LEVELS, MAP_INDEX, SEED_BASE, Cell, parse_levels, 
 
 from torchnav.config import merge, to_dict  # noqa: E402
 from torchnav.envs.nav_env import NavEnv  # noqa: E402
+from torchnav.evaluation import outcome_letter  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
 from torchnav.sim import World  # noqa: E402
 from torchnav.tasks.config import NavConfig  # noqa: E402
@@ -110,7 +111,7 @@ def play(checkpoint: str, cell: Cell, episodes: int, pinned: tuple[torch.Tensor,
             ended = nxt["done"].reshape(-1) & (steps == 0)
             for i in torch.nonzero(ended).flatten().tolist():
                 steps[i] = t + 1
-                outcome[i] = "S" if nxt["success"].reshape(-1)[i] else "C" if nxt["collision"].reshape(-1)[i] else "T"
+                outcome[i] = outcome_letter(bool(nxt["success"].reshape(-1)[i]), bool(nxt["collision"].reshape(-1)[i]))
             if (steps > 0).all():
                 break
             td = nxt.exclude("reward", "done", "terminated", "truncated")
