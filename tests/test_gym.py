@@ -86,3 +86,23 @@ def test_sb3_ppo_trains_on_the_single_env():
     obs, _ = env.reset(seed=1)
     action, _ = model.predict(obs, deterministic=True)
     assert env.action_space.contains(action.astype(np.float32))
+
+
+def test_sb3_vec_env_steps_the_whole_batch_and_refuses_per_env_attributes():
+    pytest.importorskip("stable_baselines3")
+    vec = tg.sb3_vec_env(tg.navigation_vector_env(num_envs=4, max_steps=3))
+    obs = vec.reset()
+    assert obs.shape == (4, vec.observation_space.shape[0])
+    ended = np.zeros(4, dtype=bool)
+    for _ in range(3):  # 3-step episodes: every env ends within 3 steps and reports SB3's terminal keys when it does
+        vec.step_async(np.zeros((4, 2), dtype=np.float32))
+        obs, reward, done, infos = vec.step_wait()
+        assert all("terminal_observation" in info for info, d in zip(infos, done) if d)
+        ended |= done
+    assert ended.all() and obs.shape == (4, vec.observation_space.shape[0])
+    assert vec.get_attr("num_envs") == [4] * 4
+    vec.set_attr("spare", 1)  # every env at once: fine
+    with pytest.raises(ValueError, match="share their attributes"):
+        vec.set_attr("spare", 2, indices=[0])
+    with pytest.raises(NotImplementedError):
+        vec.env_method("reset")

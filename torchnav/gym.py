@@ -275,6 +275,9 @@ def sb3_vec_env(vec: TorchnavVectorEnv):
             return [getattr(self.vec, attr_name)] * len(self._get_indices(indices))
 
         def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+            if len(self._get_indices(indices)) != self.num_envs:  # one object holds every env's attributes
+                raise ValueError(f"set_attr({attr_name!r}): the envs of a torchnav batch share their attributes; "
+                                 f"set it for all {self.num_envs} (indices=None), not for {list(self._get_indices(indices))}")
             setattr(self.vec, attr_name, value)
 
         def env_method(self, method_name: str, *args, indices=None, **kwargs) -> list[Any]:
