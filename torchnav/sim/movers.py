@@ -54,7 +54,7 @@ import torch
 from torch import Tensor
 
 from .math import safe_hypot
-from .state import World, _planar_copy
+from .state import World, _planar_copy, stack_rows
 
 MOVER_FIELDS = ("x", "y", "vx", "vy", "radius", "xmin", "ymin", "xmax", "ymax")
 N_MOVER_FIELDS = len(MOVER_FIELDS)
@@ -273,15 +273,15 @@ def check_mover_boxes(boxes: Tensor, b: int, m: int) -> int:
 def mover_world(movers: Tensor, mask: Tensor, boxes: Tensor | None = None) -> World:
     """The movers ``(B, M, 9)`` as a :class:`World` of circles ``[x, y, radius]`` (the first
     ``M - K`` slots) and boxes ``[x, y, half_x, half_y, yaw]`` (the last ``K``, whose shapes are
-    ``boxes`` ``(B, K, 3)``; ``None``: no boxes); no walls; stored component-major
-    (``planar_rows``): read without a copy."""
+    ``boxes`` ``(B, K, 3)``; ``None``: no boxes); no walls; stored component-major in the movers' own
+    ``(M, B)`` block order (``stack_rows``): built and read without a transpose."""
     b, m = movers.shape[:2]
     k = 0 if boxes is None else check_mover_boxes(boxes, b, m)
     disc, box = movers[:, : m - k], movers[:, m - k :]
-    circles = torch.stack((disc[..., 0], disc[..., 1], disc[..., 4])).permute(1, 2, 0)
+    circles = stack_rows((disc[..., 0], disc[..., 1], disc[..., 4]), disc)
     box_rows = movers.new_zeros(b, 0, 5)
     if k:
-        box_rows = torch.stack((box[..., 0], box[..., 1], boxes[..., 0], boxes[..., 1], boxes[..., 2])).permute(1, 2, 0)
+        box_rows = stack_rows((box[..., 0], box[..., 1], boxes[..., 0], boxes[..., 1], boxes[..., 2]), box)
     return World(
         segments=movers.new_zeros(b, 0, 4), segment_mask=mask[:, :0],
         circles=circles, circle_mask=mask[:, : m - k], boxes=box_rows, box_mask=mask[:, m - k :],

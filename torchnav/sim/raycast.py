@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .state import World, planar_rows
+from .state import World, planar_rows, stack_rows
 
 _INF = float("inf")
 _TINY = 1e-12
@@ -112,7 +112,7 @@ def _box_rows(box: Tensor) -> Tensor:
     once per box, not once per ray and box, when many rays meet the same boxes."""
     cx, cy, hx, hy, yaw = box.unbind(-1)
     # Stacked component-major (each component a contiguous block), so that compiled loops vectorise.
-    return torch.stack((cx, cy, hx, hy, torch.cos(yaw), torch.sin(yaw)), dim=0).permute(*range(1, box.dim()), 0)
+    return stack_rows((cx, cy, hx, hy, torch.cos(yaw), torch.sin(yaw)), box)
 
 
 def _hit_box_rows(ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, rows: Tensor, mask: Tensor) -> Tensor:

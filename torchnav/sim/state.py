@@ -137,13 +137,23 @@ _planar_copy.register_autograd(lambda ctx, grad: grad.permute(1, 2, 0))
 
 
 def is_planar(x: Tensor) -> bool:
-    """Whether ``x`` ``(B, N, k)`` is stored component-major (``x[..., i]`` a contiguous ``(B, N)`` block)."""
-    return x.shape[1] == 0 or x.permute(2, 0, 1).is_contiguous()
+    """Whether ``x`` ``(B, N, k)`` is stored component-major: ``x[..., i]`` a contiguous block, ``(B, N)`` or
+    (the movers' layout) ``(N, B)``."""
+    return x.shape[1] == 0 or x.permute(2, 0, 1).is_contiguous() or x.permute(2, 1, 0).is_contiguous()
+
+
+def stack_rows(components: list[Tensor] | tuple[Tensor, ...], like: Tensor) -> Tensor:
+    """Components ``(B, N)`` stacked into rows ``(B, N, k)`` stored component-major in ``like``'s block
+    order (``(N, B)`` blocks for the movers' layout), so that building them reads and writes
+    contiguous memory instead of transposing."""
+    if like.dim() == 3 and like.shape[1] > 1 and like.stride(0) == 1:
+        return torch.stack([c.transpose(0, 1) for c in components], 0).permute(2, 1, 0)
+    return torch.stack(tuple(components), 0).permute(*range(1, like.dim()), 0)
 
 
 def planar_rows(x: Tensor) -> Tensor:
     """``x`` ``(B, N, k)`` stored component-major (same shape and values): ``x`` itself when it
-    already is, else a materialised copy whose ``x[..., i]`` is a contiguous ``(B, N)`` block."""
+    already is (:func:`is_planar`), else a materialised copy whose ``x[..., i]`` is a contiguous ``(B, N)`` block."""
     return x if is_planar(x) else _planar_copy(x).permute(1, 2, 0)
 
 
