@@ -78,9 +78,10 @@ def main(argv: list[str]) -> dict:
             if used:
                 p.error(f"{flag} does not go with --episodes-file (the file sets the episodes, their starts and goals)")
         try:
-            file_map, *given = load_episodes(a.episodes_file)
+            file_map, starts, goals = load_episodes(a.episodes_file)
         except ValueError as e:
             p.error(str(e))
+        given = (starts, goals)
         if file_map is not None and a.map is not None and a.map != file_map:
             p.error(f"--map {a.map} but {a.episodes_file} was written for map {file_map}")
         a.map = a.map or file_map
@@ -129,7 +130,7 @@ def main(argv: list[str]) -> dict:
         title = f"{ckpt.name} on {where}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
     else:
         title = f"{ckpt.name} on {where}, {a.laps or 1} lap(s) from random starts, seed {a.seed}"
-    res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating", **({} if given is None else {"given": tuple(given)}))
+    res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating", **({} if given is None else {"given": given}))
     print(task.format(res, title=title))
     if given is not None:
         print(f"outcomes per episode (S success, C collision, T timeout): {res['outcomes']}")
@@ -139,6 +140,7 @@ def main(argv: list[str]) -> dict:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(out, indent=2))
         print(f"wrote {a.json}")
+
     def first_of(n: int):  # with --episodes-file: recorded episodes are the file's first n
         return None if given is None else (lambda env: env.reset_to(given[0][:n], given[1][:n]))
 

@@ -220,7 +220,7 @@ def test_failure_paths_on_a_map_cell_and_its_picture(tmp_path):
 
 def test_failure_paths_gap_probe_pins_starts_and_goals():
     """failure_paths --probe (docs/results.md, "Why: a 0.65 m gap read as a wall"): 168 episodes under
-    the gaps of warehouse's rack row, goals across it; play(pinned=...) starts each episode where the
+    the gaps of warehouse's rack row, goals across it; play(given=...) starts each episode where the
     probe puts it, in free space, and refuses pins of the wrong shape or on a generated-world cell."""
     sys.path.insert(0, str(ROOT / "docs" / "scripts"))
     failure_paths = importlib.import_module("failure_paths")
@@ -232,17 +232,17 @@ def test_failure_paths_gap_probe_pins_starts_and_goals():
     ckpt = ROOT / "checkpoints" / "ppo_generalist_actor.pt"
     (cell,) = benchmark.suite(["warehouse"], [], {}, benchmark.SEED_BASE)
     pick = [0, 2, 61, 100, 167]  # other gaps, offsets and headings
-    ep = failure_paths.play(str(ckpt), cell, len(pick), pinned=(starts[pick], goals[pick]))
+    ep = failure_paths.play(str(ckpt), cell, len(pick), given=(starts[pick], goals[pick]))
     torch.testing.assert_close(ep.goal, goals[pick])
-    torch.testing.assert_close(ep.path[:, 0], (starts[pick, :2] - goals[pick]).norm(dim=-1))  # started at the pinned spot
+    torch.testing.assert_close(ep.path[:, 0], (starts[pick, :2] - goals[pick]).norm(dim=-1))  # started at the given spot
     radius = load_policy(ckpt).config().robot.radius
     assert bool((points_clearance(starts[pick, None, :2], ep.world)[:, 0] > radius).all())
     with pytest.raises(ValueError, match=r"start must be \(3, 3\)"):  # NavEnv.reset_to checks the shapes
-        failure_paths.play(str(ckpt), cell, 3, pinned=(starts[:2], goals[:2]))
+        failure_paths.play(str(ckpt), cell, 3, given=(starts[:2], goals[:2]))
     levels = benchmark.parse_levels(list(benchmark.DEFAULT_LEVELS))
     world_cell = benchmark.suite([], ["corridors"], levels, benchmark.SEED_BASE)[0]
     with pytest.raises(ValueError, match="need a map cell"):
-        failure_paths.play(str(ckpt), world_cell, 2, pinned=(starts[:2], goals[:2]))
+        failure_paths.play(str(ckpt), world_cell, 2, given=(starts[:2], goals[:2]))
     for argv in ([str(ckpt), "--probe"], [str(ckpt), "--map", "warehouse", "--probe", "--episodes", "5"]):
         with pytest.raises(SystemExit):  # the probe is warehouse's and plays its own 168 episodes
             failure_paths.main(argv)

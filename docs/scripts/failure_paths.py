@@ -19,7 +19,7 @@ timeouts by default), their last 100 steps in red.
 
 ``--probe`` (``warehouse`` only) plays the gap probe of docs/results.md ("Why: a 0.65 m gap read as a
 wall") instead of the cell's episodes: 168 episodes of the cell's config whose starts and goals are
-pinned (``gap_probe``), the robot in the aisle under the rack row with the pillars (y = 0.9 m), under
+given (``gap_probe``), the robot in the aisle under the rack row with the pillars (y = 0.9 m), under
 each of the row's six 0.65 m gaps and two 0.9 m end gaps, at 0, +-0.5, +-1 and +-2 m along the aisle,
 facing along it (0), up at the row (pi/2) or back (pi), the goal straight across the row in the next
 aisle (y = 3.7 m). It prints how many reached their goal and one line per gap.
@@ -82,9 +82,9 @@ def gap_probe() -> tuple[torch.Tensor, torch.Tensor, list[tuple[float, float, fl
 
 
 @torch.no_grad()
-def play(checkpoint: str, cell: Cell, episodes: int, pinned: tuple[torch.Tensor, torch.Tensor] | None = None) -> Episodes:
+def play(checkpoint: str, cell: Cell, episodes: int, given: tuple[torch.Tensor, torch.Tensor] | None = None) -> Episodes:
     """``episodes`` episodes of ``cell`` (a generated-world cell: path distances from the goal grid;
-    a map: straight-line distances). ``pinned`` ``(starts (E, 3), goals (E, 2))`` fixes each episode's
+    a map: straight-line distances). ``given`` ``(starts (E, 3), goals (E, 2))`` fixes each episode's
     start and goal (a map cell only; ``NavEnv.reset_to``)."""
     sp = load_policy(checkpoint)
     if sp.task != "nav":
@@ -93,10 +93,10 @@ def play(checkpoint: str, cell: Cell, episodes: int, pinned: tuple[torch.Tensor,
     geodesic = cell.kind == "world"
     if geodesic:
         cfg = NavConfig.from_dict(merge(to_dict(cfg), {"reward": {"progress_distance": "geodesic"}}))
-    if pinned is not None and cell.kind != "map":
-        raise ValueError("play: pinned starts and goals need a map cell")
+    if given is not None and cell.kind != "map":
+        raise ValueError("play: given starts and goals need a map cell")
     env = NavEnv(cfg, num_envs=episodes, device="cpu", seed=cell.seed)
-    td = env.reset() if pinned is None else env.reset_to(*pinned)  # reset_to checks the shapes
+    td = env.reset() if given is None else env.reset_to(*given)  # reset_to checks the shapes
     goal = env.state.goal.clone()
     distance = (lambda: env.state.goal_path.clone()) if geodesic else (lambda: (env.state.sim.pose[:, :2] - goal).norm(dim=-1))
     path, xy = [distance()], []
@@ -216,7 +216,7 @@ def main(argv: list[str]) -> None:
         cell = replace(cell, seed=a.seed)
     if a.probe:
         starts, goals, rows = gap_probe()
-        ep = play(a.checkpoint, cell, len(rows), pinned=(starts, goals))
+        ep = play(a.checkpoint, cell, len(rows), given=(starts, goals))
         where = "the warehouse gap probe"
         print(f"{Path(a.checkpoint).name}, warehouse gap probe, seed {cell.seed}: {ep.outcomes.count('S')} of {len(rows)} reached their goal")
         print("per gap, per offset along the aisle: outcomes facing along it, up at the row, back (S, C, T)")
@@ -232,6 +232,7 @@ def main(argv: list[str]) -> None:
     if a.picture is not None:
         n = picture(ep, a.draw[0].upper(), f"{Path(a.checkpoint).name} on {where}: {a.draw}s (last 100 steps red)", a.picture)
         print(f"wrote {a.picture} ({n} episodes)")
+
 
 if __name__ == "__main__":
     C.main_guard(main)
