@@ -31,11 +31,9 @@ to the reward the actor and critic see, its weight ramped in over
 ``smooth.ramp_frames`` (at full weight from the start, or with the `proximity` term
 on, the first updates learned to stand still). Exploration is Gaussian noise before the
 ``tanh`` (reparameterised, so it does not block the gradient). ``torchnav.apg`` holds the
-horizon's rollout, its loss, the TD(lambda) targets and the smoothed terms. The shared loop in
-``recipes/_train.py`` does progress output, periodic evaluation, checkpoints, the
-final evaluation and MCAP episodes; the saved ``actor.pt`` is ``tanh`` of the
-policy network, like PPO's. Every config key is documented in
-recipes/configs/apg_lidar.yaml; docs/training.md#analytic-policy-gradients-apg
+horizon's rollout, its loss, the TD(lambda) targets and the smoothed terms. The saved
+``actor.pt`` is ``tanh`` of the policy network, like PPO's. Every config key:
+recipes/configs/apg_lidar.yaml and docs/training.md; docs/training.md#analytic-policy-gradients-apg
 describes what is differentiated and where it fails.
 """
 
@@ -52,8 +50,7 @@ from tensordict import TensorDict
 from torch import Tensor
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
-from _train import Trainer  # noqa: E402
+import builders as B  # noqa: E402
 
 from torchnav.apg import horizon_loss, lambda_returns, make_smooth, rollout  # noqa: E402,F401  (tests/test_apg.py reads them here)
 from torchnav.policy import Actor  # noqa: E402
@@ -61,8 +58,8 @@ from torchnav.policy import Actor  # noqa: E402
 
 def main(argv: list[str], name: str = "apg_lidar") -> dict:
     """Train; ``name`` picks ``configs/<name>.yaml``, whose ``task`` section picks the task (``apg_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", action_mode="continuous")
-    tc, env, device = t.cfg.train, t.env, t.device
+    run = B.setup(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", action_mode="continuous")
+    tc, env, device = run.cfg.train, run.env, run.device
     horizon, gamma, lmbda, tau = int(tc.horizon), float(tc.gamma), float(tc.lmbda), float(tc.tau)
 
     # -- networks: the policy (pre-tanh mean), a critic and its frozen target copy -------------
@@ -70,36 +67,36 @@ def main(argv: list[str], name: str = "apg_lidar") -> dict:
     loc_net = Actor(obs_size, 2, tc.hidden, tc.activation, output="linear").to(device)
     critic = Actor(obs_size, 1, tc.hidden, tc.activation, output="linear").to(device)
     critic_target = copy.deepcopy(critic).requires_grad_(False)
-    opt_actor = C.adam(loc_net.parameters(), lr=float(tc.lr_actor))
-    opt_critic = C.adam(critic.parameters(), lr=float(tc.lr_critic))
-    t.restore({"actor": loc_net, "critic": critic, "critic_target": critic_target, "opt_actor": opt_actor, "opt_critic": opt_critic})
-    t.export_actor = lambda: loc_net.squashed()
-    t.counters.setdefault("skipped_updates", 0)
-    term = make_smooth(t.task.name, t.cfg.smooth, env)
-    ramp = int(t.cfg.smooth.ramp_frames)
+    opt_actor = B.adam(loc_net.parameters(), lr=float(tc.lr_actor))
+    opt_critic = B.adam(critic.parameters(), lr=float(tc.lr_critic))
+    state = {"actor": loc_net, "critic": critic, "critic_target": critic_target, "opt_actor": opt_actor, "opt_critic": opt_critic}
+    B.restore(run, state)
+    run.counters.setdefault("skipped_updates", 0)
+    term = make_smooth(run.task.name, run.cfg.smooth, env)
+    ramp = int(run.cfg.smooth.ramp_frames)
+    if run.fresh:  # a resumed run continues the checkpoint's episodes
+        env.reset()
 
     def smooth(state) -> Tensor:
         """The smoothed terms, their weight ramped from 0 over ``smooth.ramp_frames`` (continuation:
         learn to move before learning to keep away; a full weight at once can teach standing still)."""
-        return term(state) * (min(1.0, t.counters["frames"] / ramp) if ramp else 1.0)
-    if t.fresh:  # a resumed run continues the checkpoint's episodes
-        env.reset()
+        return term(state) * (min(1.0, run.counters["frames"] / ramp) if ramp else 1.0)
 
     def sigma() -> float:
         """Exploration noise, annealed linearly over ``train.expl_anneal_frames``."""
-        frac = min(1.0, t.counters["frames"] / max(int(tc.expl_anneal_frames), 1))
+        frac = min(1.0, run.counters["frames"] / max(int(tc.expl_anneal_frames), 1))
         return float(tc.expl_sigma_init) + frac * (float(tc.expl_sigma_end) - float(tc.expl_sigma_init))
 
     def batches() -> Iterator[TensorDict]:
-        for _ in range(math.ceil(t.remaining_frames() / (env.num_envs * horizon))):
-            yield rollout(env, loc_net, critic_target, smooth, horizon, gamma, sigma(), t.task.outcome_keys)
+        for _ in range(math.ceil(run.remaining_frames() / (env.num_envs * horizon))):
+            yield rollout(env, loc_net, critic_target, smooth, horizon, gamma, sigma(), run.task.outcome_keys)
 
     mb = int(tc.minibatch_size)
 
     def update(batch: TensorDict) -> dict[str, Tensor]:
         if tc.lr_decay:  # linearly to 0 at train.total_frames, as SHAC
             for opt, lr in ((opt_actor, tc.lr_actor), (opt_critic, tc.lr_critic)):
-                C.decay_lr(opt, lr, t.counters["frames"], int(tc.total_frames))
+                B.decay_lr(opt, lr, run.counters["frames"], int(tc.total_frames))
         # actor: backpropagate the horizon's return through the simulator
         loss = horizon_loss(batch, float(tc.action_reg))
         opt_actor.zero_grad(set_to_none=True)
@@ -108,8 +105,8 @@ def main(argv: list[str], name: str = "apg_lidar") -> dict:
         if torch.isfinite(norm) and norm <= float(tc.skip_grad_norm):
             opt_actor.step()
         else:  # an exploding or non-finite gradient: drop this update rather than the policy
-            t.counters["skipped_updates"] += 1
-        t.counters["updates"] += 1
+            run.counters["skipped_updates"] += 1
+        run.counters["updates"] += 1
         # critic: TD(lambda) targets of the detached horizon
         with torch.no_grad():
             target = lambda_returns(batch["reward"], batch["bootstrap"], batch["next", "done"][..., 0], gamma, lmbda)
@@ -126,8 +123,17 @@ def main(argv: list[str], name: str = "apg_lidar") -> dict:
                 p_t.lerp_(p, tau)
         return {"actor": loss.detach(), "critic": v_loss.detach(), "grad_norm": norm.detach(), "sigma": torch.tensor(sigma())}
 
-    return t.train(batches() if t.remaining_frames() > 0 else None, update)
+    # -- the loop ------------------------------------------------------------------------------------
+    deterministic = loc_net.squashed  # the saved policy: the mean action tanh(loc)
+    with B.Progress(run, state, deterministic) as progress:
+        for data in batches():
+            progress.collected(data)
+            losses = update(data)
+            progress.updated(losses)  # progress output, logs, periodic evaluation and checkpoints
+            if progress.stop:
+                break
+    return B.stopped(run) if progress.stop else B.finish(run, deterministic())
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

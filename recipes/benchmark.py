@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
+import builders as B  # noqa: E402
 from compare import _pct, evaluate_method, load_methods, method_configs  # noqa: E402
 
 from torchnav.config import to_dict  # noqa: E402
@@ -235,7 +235,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     p.add_argument("--seed", type=int, default=SEED_BASE, help=f"seed of the first cell (default {SEED_BASE}); cell i adds {SEED_STRIDE} * i")
     p.add_argument("--out", default="runs/benchmark", help="output directory (default runs/benchmark)")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--threads", type=C.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
+    p.add_argument("--threads", type=B.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
     a = p.parse_args(argv)
     maps = available_maps() if a.maps is None else a.maps
     families = list(FAMILIES) if a.families is None else a.families
@@ -263,7 +263,7 @@ def main(argv: list[str]) -> dict[str, Any]:
         p.error(f"a cell is given twice: {' '.join(c.label for c in cells)}")
     if not a.checkpoints and not a.controllers:
         p.error("nothing to benchmark: give checkpoints or --controllers")
-    C.ThreadGovernor(a.threads)
+    B.ThreadGovernor(a.threads)
     methods, base = load_methods(a.checkpoints, a.controllers)
     # Every cell's configs (and the scenario check of each checkpoint) before any episode runs.
     cfgs = {c.label: dict(zip([n for n, _, _ in methods], method_configs(methods, base, c.config, CHECK_EPISODES, c.seed, c.label)))
@@ -296,4 +296,4 @@ def main(argv: list[str]) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-import _common as C
+import builders as B
 
 from torchnav.config import to_dict
 from torchnav.controllers import CONTROLLERS, make_controller
@@ -211,7 +211,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     p.add_argument("--scenarios", type=int, default=3, help="scenarios per map drawn in trajectories.png (default 3; 0: no picture)")
     p.add_argument("--out", default="runs/compare", help="output directory (default runs/compare)")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--threads", type=C.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
+    p.add_argument("--threads", type=B.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
     a = p.parse_args(argv)
     if a.episodes < 1:
         p.error("--episodes must be >= 1")
@@ -221,7 +221,7 @@ def main(argv: list[str]) -> dict[str, Any]:
             p.error(f"unknown controller {name!r}; available: {', '.join(CONTROLLERS)}")
     if not controllers and not a.checkpoints:
         p.error("nothing to compare: give checkpoints or controllers")
-    C.ThreadGovernor(a.threads)
+    B.ThreadGovernor(a.threads)
     specs = {}
     for m in a.maps:
         try:
@@ -257,4 +257,4 @@ def main(argv: list[str]) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

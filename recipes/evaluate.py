@@ -23,7 +23,7 @@ from pathlib import Path
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
+import builders as B  # noqa: E402
 
 from torchnav.config import merge  # noqa: E402
 from torchnav.evaluation import FINAL_EVAL_SEED, load_episodes  # noqa: E402
@@ -61,7 +61,7 @@ def main(argv: list[str]) -> dict:
     p.add_argument("--seed", type=int, default=FINAL_EVAL_SEED, help="scenario seed (default 20000)")
     p.add_argument("--curriculum", action="store_true", help="keep the training curriculum's goal radius instead of goals anywhere")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--threads", type=C.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
+    p.add_argument("--threads", type=B.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
     p.add_argument("--json", default=None, help="write the results as JSON to this path")
     p.add_argument("--record", type=int, default=0, help="write this many episodes to an MCAP file")
     p.add_argument("--record-path", default=None, help="MCAP path (default: eval_episodes.mcap beside a run's checkpoint, else runs/eval/<checkpoint>_<map>.mcap)")
@@ -94,7 +94,7 @@ def main(argv: list[str]) -> dict:
         p.error("--episodes must be >= 1")
     if a.live is not None and not (0 <= a.live <= 65535 and a.live_episodes >= 1 and a.realtime > 0):
         p.error("--live needs a port in [0, 65535], --live-episodes >= 1 and --realtime > 0")
-    C.ThreadGovernor(a.threads)
+    B.ThreadGovernor(a.threads)
     ckpt = Path(a.checkpoint)
     sp = load_policy(ckpt)
     actor = sp.policy.to(a.device)
@@ -162,4 +162,4 @@ def main(argv: list[str]) -> dict:
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

@@ -4,15 +4,14 @@
     python recipes/ppo_lidar.py task.map=warehouse train.total_frames=20000000
     python recipes/ppo_lidar.py --resume               # continue the newest run
 
-Reads top to bottom: config and env (``_train.Trainer``) -> observation statistics
-from a random-action rollout (baked into both networks as normalisation) -> a
-tanh-squashed Gaussian policy with a state-independent log-std and a value
-network -> ``ClipPPOLoss`` with GAE -> collector -> update (advantages over the
-whole batch, then `epochs` passes of shuffled minibatches). With ``train.recurrent: gru`` the
-policy is a ``RecurrentActor`` (MLP -> GRU cell -> head; the value network stays feed-forward)
-whose state each env carries through collection, and minibatches are whole per-env sequences. The shared loop in
-``recipes/_train.py`` does progress output, periodic evaluation, checkpoints and
-the final evaluation. Every config key is documented in recipes/configs/ppo_lidar.yaml.
+Reads top to bottom: the run (``builders.setup``) -> observation statistics from a
+random-action rollout (baked into both networks as normalisation) -> a tanh-squashed Gaussian
+policy with a state-independent log-std and a value network -> ``ClipPPOLoss`` with GAE ->
+collector -> the loop (advantages over the whole batch, then `epochs` passes of shuffled
+minibatches) -> the final evaluation. With ``train.recurrent: gru`` the policy is a
+``RecurrentActor`` (MLP -> GRU cell -> head; the value network stays feed-forward) whose state
+each env carries through collection, and minibatches are whole per-env sequences. Every config
+key: recipes/configs/ppo_lidar.yaml and docs/training.md.
 """
 
 from __future__ import annotations
@@ -28,8 +27,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
-from _train import Trainer  # noqa: E402
+import builders as B  # noqa: E402
 
 from torchnav.policy import STATE_KEY, Actor, RecurrentActor, RecurrentStep, with_state  # noqa: E402
 
@@ -75,21 +73,10 @@ def gaussian_policy(loc_net: Actor | RecurrentActor, act_size: int, init_log_std
     return ProbabilisticActor(params, in_keys=["loc", "scale"], spec=action_spec, distribution_class=TanhNormal, return_log_prob=True), std
 
 
-@torch.no_grad()
-def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and standard deviation ``(obs_size,)`` of the observation under random actions for ``steps``
-    steps; 0 and 1 for the features the task marks as already scaled (``task.unit_features``)."""
-    td = env.rollout(steps, break_when_any_done=False)
-    obs = td["observation"].reshape(-1, td["observation"].shape[-1]).double()
-    loc, scale = obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
-    unit = env.task.unit_features.to(loc.device)
-    return loc.masked_fill(unit, 0.0), scale.masked_fill(unit, 1.0)
-
-
 def main(argv: list[str], name: str = "ppo_lidar") -> dict:
     """Train; ``name`` picks ``configs/<name>.yaml``, whose ``task`` section picks the task (``ppo_line.py`` reuses this)."""
-    t = Trainer(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", action_mode="continuous")
-    tc, env, device = t.cfg.train, t.env, t.device
+    run = B.setup(name, argv, ckpt_format=f"torchnav-{name.replace('_', '-')}-v1", action_mode="continuous")
+    tc, env, device = run.cfg.train, run.env, run.device
 
     # -- networks: both normalise observations with statistics of a random-action rollout -----
     obs_size, act_size = env.task.obs_size, 2
@@ -99,8 +86,8 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
     else:
         loc_net = Actor(obs_size, act_size, tc.hidden, tc.activation, output="linear").to(device)
     value_net = Actor(obs_size, 1, tc.hidden, tc.activation, output="linear").to(device)
-    if t.fresh:
-        loc, scale = observation_stats(env, int(tc.obs_stats_steps))
+    if run.fresh:
+        loc, scale = B.observation_stats(env, int(tc.obs_stats_steps))
         loc_net.set_normalization(loc, scale)
         value_net.set_normalization(loc, scale)
     policy, std = gaussian_policy(loc_net, act_size, tc.init_log_std, env.action_spec_unbatched)
@@ -109,9 +96,14 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
     loss = ClipPPOLoss(policy, critic, clip_epsilon=tc.clip_epsilon, entropy_coeff=tc.entropy_coeff,
                        critic_coeff=tc.critic_coeff, loss_critic_type="l2", normalize_advantage=True)
     gae = GAE(gamma=tc.gamma, lmbda=tc.lmbda, value_network=critic, average_gae=False)
-    optim = C.adam(loss.parameters(), lr=tc.lr, eps=1e-5)
-    t.restore({"loss": loss, "optim": optim})
-    t.export_actor = lambda: loc_net.squashed()
+    optim = B.adam(loss.parameters(), lr=tc.lr, eps=1e-5)
+    state = {"loss": loss, "optim": optim}
+    if recurrent:  # each env carries the policy's state from step to step, and a checkpoint saves it
+        carry = state["recurrent"] = B.RecurrentCarry(env.num_envs, tc.recurrent_hidden, device)
+        collector = B.make_collector(run, policy, env=with_state(env, loc_net, start=carry))
+    else:
+        collector = B.make_collector(run, policy)
+    B.restore(run, state, collector)
 
     # -- update: advantages over the batch, then `epochs` passes of shuffled minibatches -------
     # (the batch is (envs, steps); a recurrent policy's minibatches are whole rows: each env's
@@ -124,7 +116,7 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
 
     def update(batch):
         if tc.lr_decay:  # linearly towards 0 at train.total_frames: the first batch at train.lr, the last at lr / batches
-            C.decay_lr(optim, tc.lr, t.counters["frames"] - int(tc.frames_per_batch), int(tc.total_frames))
+            B.decay_lr(optim, tc.lr, run.counters["frames"] - int(tc.frames_per_batch), int(tc.total_frames))
         batch = batch.select(*keys)
         with torch.no_grad():
             gae(batch)
@@ -138,13 +130,26 @@ def main(argv: list[str], name: str = "ppo_lidar") -> dict:
                 total.backward()
                 torch.nn.utils.clip_grad_norm_(loss.parameters(), float(tc.max_grad_norm))
                 optim.step()
-                t.counters["updates"] += 1
+                run.counters["updates"] += 1
         out = {k: lv[k].detach() for k in ("loss_objective", "loss_critic", "loss_entropy")}  # read only when logged
         out["log_std"] = std.log_std.detach().mean()
         return out
 
-    return t.train(t.collector(policy, env=with_state(env, loc_net) if recurrent else None), update)
+    # -- the loop ------------------------------------------------------------------------------------
+    deterministic = loc_net.squashed  # the saved policy: the mean action tanh(loc)
+    with B.Progress(run, state, deterministic) as progress:
+        for data in collector or ():
+            progress.collected(data)
+            if recurrent:
+                carry.keep(data)
+            losses = update(data)
+            progress.updated(losses)  # progress output, logs, periodic evaluation and checkpoints
+            if progress.stop:
+                break
+    if collector is not None:
+        collector.shutdown()
+    return B.stopped(run) if progress.stop else B.finish(run, deterministic())
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

@@ -17,7 +17,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import ppo_lidar  # noqa: E402
-import _common as C  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
@@ -25,4 +24,4 @@ def main(argv: list[str]) -> dict:
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    ppo_lidar.B.main_guard(main)

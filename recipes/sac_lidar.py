@@ -4,12 +4,11 @@
     python recipes/sac_lidar.py task.map=warehouse train.total_frames=500000
     python recipes/sac_lidar.py --resume               # continue the newest run
 
-Reads top to bottom: config and env (``_train.Trainer``) -> a tanh-squashed
-Gaussian actor with state-dependent scale, twin Q-networks -> ``SACLoss`` with a
-learned temperature -> collector -> update (store the batch; `updates_per_batch`
-gradient steps on sampled minibatches, soft target updates). Replay, progress,
-evaluation and checkpoints are shared with TD3 (``recipes/_train.py``). Every
-config key is documented in recipes/configs/sac_lidar.yaml.
+Reads top to bottom: the run (``builders.setup``) -> a tanh-squashed Gaussian actor with
+state-dependent scale, twin Q-networks -> ``SACLoss`` with a learned temperature -> replay buffer
+and collector -> the loop (store the batch; `updates_per_batch` gradient steps on sampled
+minibatches, soft target updates) -> the final evaluation. Every config key: recipes/configs/sac_lidar.yaml
+and docs/training.md.
 """
 
 from __future__ import annotations
@@ -20,13 +19,11 @@ from pathlib import Path
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
-from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import SACLoss, SoftUpdate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
-from _train import ReplayState, Trainer, replay_update  # noqa: E402
+import builders as B  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
 
@@ -38,8 +35,8 @@ def make_critic(obs_size: int, act_size: int, hidden) -> ValueOperator:
 
 
 def main(argv: list[str]) -> dict:
-    t = Trainer("sac_lidar", argv, ckpt_format="torchnav-sac-v1", action_mode="continuous")
-    tc, env, device = t.cfg.train, t.env, t.device
+    run = B.setup("sac_lidar", argv, ckpt_format="torchnav-sac-v1", action_mode="continuous")
+    tc, env, device = run.cfg.train, run.env, run.device
 
     # -- networks and loss: the actor's linear head emits (loc, raw scale) --------------------
     obs_size, act_size = env.task.obs_size, 2
@@ -53,12 +50,13 @@ def main(argv: list[str]) -> dict:
                    alpha_init=float(tc.alpha_init), action_spec=env.action_spec_unbatched, delay_qvalue=True)
     loss.make_value_estimator(gamma=tc.gamma)
     target_update = SoftUpdate(loss, tau=tc.tau)
-    opt_actor = C.adam(loss.actor_network_params.flatten_keys().values(), lr=tc.lr_actor)
-    opt_critic = C.adam(loss.qvalue_network_params.flatten_keys().values(), lr=tc.lr_critic)
-    opt_alpha = C.adam([loss.log_alpha], lr=tc.lr_alpha)
-    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(tc.buffer_size, device=device), batch_size=tc.batch_size)
-    t.restore({"loss": loss, "opt_actor": opt_actor, "opt_critic": opt_critic, "opt_alpha": opt_alpha, "replay": ReplayState(buffer)})
-    t.export_actor = lambda: net.squashed(act_size)  # deterministic action tanh(loc)
+    opt_actor = B.adam(loss.actor_network_params.flatten_keys().values(), lr=tc.lr_actor)
+    opt_critic = B.adam(loss.qvalue_network_params.flatten_keys().values(), lr=tc.lr_critic)
+    opt_alpha = B.adam([loss.log_alpha], lr=tc.lr_alpha)
+    buffer = B.make_replay_buffer(run)
+    state = {"loss": loss, "opt_actor": opt_actor, "opt_critic": opt_critic, "opt_alpha": opt_alpha, "replay": B.ReplayState(buffer)}
+    collector = B.make_collector(run, actor, random_start=True)
+    B.restore(run, state, collector)
 
     # -- one gradient step on actor, twin critics and temperature; then soft target update -----
     opts = (opt_actor, opt_critic, opt_alpha)
@@ -74,8 +72,19 @@ def main(argv: list[str]) -> dict:
         target_update.step()
         return {k: lv[k].detach() for k in ("loss_actor", "loss_qvalue", "alpha", "entropy")}  # read only when logged
 
-    return t.train(t.collector(actor, random_start=True), replay_update(t, buffer, step))
+    # -- the loop ------------------------------------------------------------------------------------
+    deterministic = lambda: net.squashed(act_size)  # noqa: E731  (the saved policy: the action tanh(loc))
+    with B.Progress(run, state, deterministic) as progress:
+        for data in collector or ():
+            progress.collected(data)
+            losses = B.replay_updates(run, buffer, data, step)
+            progress.updated(losses)  # progress output, logs, periodic evaluation and checkpoints
+            if progress.stop:
+                break
+    if collector is not None:
+        collector.shutdown()
+    return B.stopped(run) if progress.stop else B.finish(run, deterministic())
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

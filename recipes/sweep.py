@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import _common as C  # noqa: E402
+import builders as B  # noqa: E402
 
 from torchnav.evaluation import wilson_interval  # noqa: E402
 
@@ -43,7 +43,7 @@ def settings(grid: list[str]) -> list[dict[str, str]]:
     axes = []
     for g in grid:
         if "=" not in g:
-            raise C.ConfigError(f"--grid expects KEY=V1,V2,..., got {g!r}")
+            raise B.ConfigError(f"--grid expects KEY=V1,V2,..., got {g!r}")
         k, vals = g.split("=", 1)
         axes.append([(k, v) for v in vals.split(",") if v != ""] or [(k, "")])
     return [dict(combo) for combo in itertools.product(*axes)]
@@ -63,10 +63,10 @@ def launch(a: argparse.Namespace) -> Path:
         for seed in a.seeds:
             run = out / setting_name(s) / f"seed{seed}"
             args = [f"seed={seed}", *(f"{k}={v}" for k, v in s.items()), *a.set, f"logger.run_dir={run}", "logger.progress=false"]
-            C.load_config(a.recipe, args)  # a bad value stops the sweep here, before any job starts
+            B.load_config(a.recipe, args)  # a bad value stops the sweep here, before any job starts
             jobs.append(args)
     if out.exists() and any(out.iterdir()):
-        raise C.ConfigError(f"{out} is not empty; sweeps never write into an earlier sweep's folder")
+        raise B.ConfigError(f"{out} is not empty; sweeps never write into an earlier sweep's folder")
     out.mkdir(parents=True, exist_ok=True)
     (out / "sweep_spec.json").write_text(json.dumps({"recipe": a.recipe, "seeds": a.seeds, "grid": a.grid, "set": a.set}, indent=2))
     ex = submitit.AutoExecutor(folder=out / "submitit", cluster=a.cluster)
@@ -195,4 +195,4 @@ def main(argv: list[str] | None = None) -> Any:
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

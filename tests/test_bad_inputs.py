@@ -200,17 +200,17 @@ def test_resume_without_a_path_takes_only_this_recipes_runs(tmp_path):
 def test_run_directories_are_never_shared(tmp_path):
     from types import SimpleNamespace
 
-    import _common
+    import builders
 
     cfg = SimpleNamespace(seed=0, logger=SimpleNamespace(root=str(tmp_path), run_dir=None))
-    runs = {_common.make_run_dir(cfg, "td3_lidar") for _ in range(3)}  # same second, same seed
+    runs = {builders.make_run_dir(cfg, "td3_lidar") for _ in range(3)}  # same second, same seed
     assert len(runs) == 3 and all(r.is_dir() for r in runs)
     taken = tmp_path / "taken"
     taken.mkdir()
     (taken / "config.yaml").write_text("seed: 0\n")
     cfg.logger.run_dir = str(taken)
     with pytest.raises(ConfigError, match="already holds a run"):
-        _common.make_run_dir(cfg, "td3_lidar")
+        builders.make_run_dir(cfg, "td3_lidar")
 
 
 # --------------------------------------------------------------------------- maps and tracks

@@ -54,7 +54,7 @@ def _td3(args):
 
 def test_observation_stats_leave_the_visit_memory_unscaled():
     # random actions hardly leave the start: their spread of the visit memory would blow it up
-    from ppo_lidar import observation_stats
+    from builders import observation_stats
 
     from torchnav.envs import make_nav_env
 
@@ -169,13 +169,13 @@ def test_td3_unknown_key_and_missing_checkpoint(tmp_path):
 
 
 def test_logger_backend_is_checked_before_the_run(tmp_path, monkeypatch):
-    import _common
+    import builders
 
     from torchnav.config import ConfigError
 
     with pytest.raises(ConfigError, match="logger.backend must be one of"):
         _td3(TINY + ["logger.backend=mlflowx", f"logger.run_dir={tmp_path / 'a'}"])
-    monkeypatch.setitem(_common.LOGGER_BACKENDS, "tensorboard", "no_such_package_xyz")
+    monkeypatch.setitem(builders.LOGGER_BACKENDS, "tensorboard", "no_such_package_xyz")
     with pytest.raises(ConfigError, match=r"needs the no_such_package_xyz package: pip install -e '\.\[tensorboard\]'"):
         _td3(TINY + ["logger.backend=tensorboard", f"logger.run_dir={tmp_path / 'b'}"])
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
@@ -184,9 +184,9 @@ def test_logger_backend_is_checked_before_the_run(tmp_path, monkeypatch):
 def test_csv_rows_are_on_disk_as_logged(tmp_path):
     from types import SimpleNamespace
 
-    import _common
+    import builders
 
-    log = _common.make_logger(SimpleNamespace(logger=SimpleNamespace(backend="csv")), tmp_path)
+    log = builders.make_logger(SimpleNamespace(logger=SimpleNamespace(backend="csv")), tmp_path)
     log.log_scalar("train/success_rate", 0.25, step=1024)
     rows = [p.read_text() for p in (tmp_path / "logs").rglob("*.csv")]
     assert rows and "0.25" in rows[0], "the CSV row is not on disk right after log_scalar"
@@ -397,7 +397,7 @@ def test_movers_policy_evaluates_on_its_map_and_config_validates(monkeypatch):
     """The shipped movers policy and its recipe config: the map has the arena's boxes plus 4 bouncing
     discs, the config is the fast arena recipe on that map, and evaluate.py runs the policy there."""
     import evaluate
-    from _common import load_config
+    from builders import load_config
 
     from torchnav.maps import load_map
 

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "recipes"))
-import _common as C  # noqa: E402
+import builders as B  # noqa: E402
 
 needs_proc_stat = pytest.mark.skipif(not Path("/proc/stat").is_file(), reason="auto threads read /proc/stat (Linux)")
 
@@ -17,20 +17,20 @@ needs_proc_stat = pytest.mark.skipif(not Path("/proc/stat").is_file(), reason="a
 def test_fixed_and_invalid_settings():
     before = torch.get_num_threads()
     try:
-        g = C.ThreadGovernor(1)
+        g = B.ThreadGovernor(1)
         assert g.threads == 1 and not g.auto and torch.get_num_threads() == 1
         assert g.update(force=True) is None  # a fixed count never changes
         for bad in ("x", 0, -2, 1.5, True):
-            with pytest.raises(C.ConfigError, match="threads must be 'auto' or an int >= 1"):
-                C.ThreadGovernor(bad)
+            with pytest.raises(B.ConfigError, match="threads must be 'auto' or an int >= 1"):
+                B.ThreadGovernor(bad)
     finally:
         torch.set_num_threads(before)
 
 
-def _auto_governor_on_an_idle_machine() -> C.ThreadGovernor:
+def _auto_governor_on_an_idle_machine() -> B.ThreadGovernor:
     """An ``auto`` governor, or a skip where the machine cannot show what it does (one core, a
     container whose /proc/stat counts other cores, or other processes already busy)."""
-    g = C.ThreadGovernor("auto", interval=0.5)
+    g = B.ThreadGovernor("auto", interval=0.5)
     if not g.auto or g.cores < 2:
         pytest.skip("needs 2 or more cores counted alike by /proc/stat and the affinity mask")
     mark = g._sample()
@@ -67,12 +67,12 @@ def test_auto_gives_a_core_to_a_busy_process_and_takes_it_back():
 
 
 def test_threads_arg():
-    assert C.threads_arg("auto") == "auto" and C.threads_arg("3") == 3
+    assert B.threads_arg("auto") == "auto" and B.threads_arg("3") == 3
     import argparse
 
     for bad in ("0", "-1", "two"):
         with pytest.raises(argparse.ArgumentTypeError):
-            C.threads_arg(bad)
+            B.threads_arg(bad)
 
 
 @needs_proc_stat
@@ -98,10 +98,10 @@ def test_steal_is_read_and_reported_as_part_of_the_others(tmp_path):
     can be told from another process."""
     before = torch.get_num_threads()
     try:
-        g = C.ThreadGovernor(1)
+        g = B.ThreadGovernor(1)
         stat = tmp_path / "stat"
         g.STAT = stat
-        tick = C.os.sysconf("SC_CLK_TCK")
+        tick = B.os.sysconf("SC_CLK_TCK")
         stat.write_text("cpu  1000 0 100 5000 10 0 0 300 0 0\ncpu0 1 0 0 0 0 0 0 0 0 0\n")
         a = g._sample()
         stat.write_text(f"cpu  1000 0 100 5000 10 0 0 {300 + 2 * tick} 0 0\ncpu0 1 0 0 0 0 0 0 0 0 0\n")

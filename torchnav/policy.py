@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -176,14 +176,17 @@ class RecurrentActor(_Normalised):
         return {**super().spec(), "state_size": self.state_size}
 
 
-def with_state(env: Any, actor: RecurrentActor) -> Any:
+def with_state(env: Any, actor: RecurrentActor, start: Callable[[], torch.Tensor] | None = None) -> Any:
     """``env`` with the state of ``actor`` that each env carries in its specs (TorchRL's
     ``TensorDictPrimer``: zeros at a reset), so that a collector's ``step_mdp`` carries it from
-    one step to the next (it drops entries the specs do not name). The env itself is shared."""
+    one step to the next (it drops entries the specs do not name). The env itself is shared.
+    ``start()``, if given, makes the state at a reset instead of zeros: a ``(num_envs, state_size)``
+    tensor, of which the rows of the envs being reset are used."""
     from torchrl.data import Unbounded
     from torchrl.envs import TensorDictPrimer, TransformedEnv
 
-    return TransformedEnv(env, TensorDictPrimer({STATE_KEY: Unbounded(shape=(actor.state_size,), device=env.device)}, expand_specs=True))
+    spec = {STATE_KEY: Unbounded(shape=(actor.state_size,), device=env.device)}
+    return TransformedEnv(env, TensorDictPrimer(spec, default_value={STATE_KEY: start if start is not None else 0.0}, expand_specs=True))
 
 
 class RecurrentStep(TensorDictModuleBase):

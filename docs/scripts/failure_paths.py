@@ -37,7 +37,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "recipes"))
-import _common as C  # noqa: E402
+import builders as B  # noqa: E402
 from benchmark import DEFAULT_LEVELS, MAP_INDEX, SEED_BASE, Cell, parse_levels, suite  # noqa: E402
 
 from torchnav.config import merge, to_dict  # noqa: E402
@@ -190,7 +190,7 @@ def main(argv: list[str]) -> None:
     p.add_argument("--episodes", type=int, default=None, help="episodes of the cell (default 200; --probe plays its own 168)")
     p.add_argument("--picture", type=Path, default=None, help="PNG of the first six episodes ending as --draw")
     p.add_argument("--draw", default="timeout", choices=("collision", "timeout"), help="which failures --picture draws")
-    p.add_argument("--threads", type=C.threads_arg, default=1)
+    p.add_argument("--threads", type=B.threads_arg, default=1)
     p.add_argument("--probe", action="store_true", help="play the warehouse gap probe (module docstring) instead of the cell's episodes")
     a = p.parse_args(argv)
     if a.probe and a.map != "warehouse":
@@ -202,7 +202,7 @@ def main(argv: list[str]) -> None:
         p.error(f"--difficulty must be in [0, 1], got {a.difficulty}")
     if a.episodes < 1:
         p.error("--episodes must be >= 1")
-    C.ThreadGovernor(a.threads)
+    B.ThreadGovernor(a.threads)
     if a.map is not None:
         (cell,) = suite([a.map], [], {}, SEED_BASE)
         where = f"map {a.map}"
@@ -235,4 +235,4 @@ def main(argv: list[str]) -> None:
 
 
 if __name__ == "__main__":
-    C.main_guard(main)
+    B.main_guard(main)

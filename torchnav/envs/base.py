@@ -88,10 +88,18 @@ class BatchedEnv(EnvBase):
 
     flag_keys: tuple[str, ...] = ()  # the task's outcome flags, each (B, 1) bool in every output
 
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
-        mask = None if tensordict is None else tensordict.get("_reset", None)
-        # Out of place: the previous step's outputs share storage with the old state.
-        self._state = self._new_state(None if self._state is None or mask is None else mask.reshape(-1))
+    # ``reset(set_state=True)`` (TorchRL's deterministic reset) continues the episodes the env holds,
+    # drawing nothing: after ``load_state_dict``, a collector's ``reset(set_state=True)`` resumes a run.
+    _supports_set_state = True
+
+    def _reset(self, tensordict: TensorDictBase | None = None, set_state: bool = False, **kwargs: Any) -> TensorDictBase:
+        if set_state:
+            if self._state is None:
+                raise RuntimeError(f"{type(self).__name__}.reset(set_state=True): the env holds no episodes to continue")
+        else:
+            mask = None if tensordict is None else tensordict.get("_reset", None)
+            # Out of place: the previous step's outputs share storage with the old state.
+            self._state = self._new_state(None if self._state is None or mask is None else mask.reshape(-1))
         s = self._state
         # Separate tensors per key: TorchRL may write into them in place, so they must not alias.
         false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
