@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 
 gymnasium = pytest.importorskip("gymnasium")
 
@@ -86,6 +87,47 @@ def test_sb3_ppo_trains_on_the_single_env():
     obs, _ = env.reset(seed=1)
     action, _ = model.predict(obs, deterministic=True)
     assert env.action_space.contains(action.astype(np.float32))
+
+
+def _first_episodes(model, normalizer, episodes: int = 200) -> tuple[float, float]:
+    """Mean return and success rate of the deterministic policy over the first episode of each of
+    ``episodes`` envs on ``empty`` with goals anywhere (the same episodes for every policy)."""
+    import torchnav.gym as tg
+
+    envs = tg.navigation_vector_env(num_envs=episodes, seed=10_000, map="empty", max_steps=200, curriculum={"mode": "off"})
+    obs, _ = envs.reset(seed=10_000)
+    ret, success, live = np.zeros(episodes), np.zeros(episodes, bool), np.ones(episodes, bool)
+    while live.any():
+        action, _ = model.predict(normalizer.normalize_obs(obs), deterministic=True)
+        obs, reward, terminated, truncated, info = envs.step(action)
+        ret += reward * live
+        ended = (terminated | truncated) & live
+        if ended.any():
+            success[ended] = info["final_info"]["success"][ended]
+        live &= ~(terminated | truncated)
+    return float(ret.mean()), float(success.mean())
+
+
+def test_sb3_ppo_learns_through_the_vec_env():
+    """SB3's PPO learns through the SB3 VecEnv adapter: 150k steps raise the deterministic policy's mean
+    return on the same 200 episodes from about -75 to about +53 and its success from 3% to 12-15.5%
+    (seeds 0 and 1)."""
+    sb3 = pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    torch.manual_seed(0)
+    envs = VecNormalize(tg.sb3_vec_env(tg.navigation_vector_env(num_envs=256, seed=0, map="empty", max_steps=200,
+                                                                curriculum={"mode": "off"})), gamma=0.99)
+    model = sb3.PPO("MlpPolicy", envs, n_steps=32, batch_size=2048, n_epochs=4, learning_rate=2e-3,
+                    policy_kwargs={"net_arch": [64, 64]}, seed=0, device="cpu", verbose=0)
+    envs.training = False
+    ret0, success0 = _first_episodes(model, envs)
+    envs.training = True
+    model.learn(total_timesteps=150_000)
+    envs.training = False
+    ret1, success1 = _first_episodes(model, envs)
+    assert ret1 > ret0 + 50, (ret0, ret1)
+    assert success1 >= success0 + 0.05, (success0, success1)
 
 
 def test_sb3_vec_env_steps_the_whole_batch_and_refuses_per_env_attributes():

@@ -258,6 +258,21 @@ def test_evaluate_records_outside_tracked_folders(tmp_path, monkeypatch, capsys)
     assert "evaluating" in capsys.readouterr().err, "no progress bar on stderr"
 
 
+def test_ppo_short_run_on_empty_learns_to_reach_goals(tmp_path):
+    """PPO learns within seconds: 400k frames on the obstacle-free map with goals anywhere take an
+    untrained policy (about 0-5%) to at least 60% of 200 final-evaluation episodes (seeds 0, 2 and 3
+    of this setting reached 78.5, 99.5 and 99.5%)."""
+    res = _run("ppo_lidar", [
+        "threads=1", "task.map=empty", "task.max_steps=200", "task.curriculum.mode=off", "env.num_envs=1024",
+        "train.frames_per_batch=8192", "train.minibatch_size=2048", "train.epochs=4", "train.lr=0.002", "train.total_frames=409600",
+        "train.obs_stats_steps=8", "eval.interval_frames=0", "eval.final_episodes=200", "eval.record_episodes=0",
+        "logger.progress=false", f"logger.run_dir={tmp_path / 'run'}",
+    ])
+    assert res["frames"] == 409600
+    assert res["eval"]["success"]["rate"] >= 0.6, res["eval"]
+    assert res["eval"]["collision"]["rate"] <= 0.05, res["eval"]
+
+
 @pytest.mark.slow
 def test_td3_short_run_on_empty_clears_threshold(tmp_path):
     """A short TD3 run on the obstacle-free map learns to reach goals (about 4-5 minutes on 2 cores)."""
