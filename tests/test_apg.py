@@ -37,14 +37,14 @@ def test_horizon_loss_gradient_matches_finite_differences():
     central differences along random directions, in float64."""
     torch.manual_seed(0)
     env = nav_env(4, torch.float64, max_steps=500)
-    start, gen = env.state.clone(), env._generator.get_state()
+    start = env.state_dict()  # episodes, generator, curriculum: every loss starts from them
     policy = Actor(env.task.obs_size, 2, [16], "tanh", output="linear").double()
     value = Actor(env.task.obs_size, 1, [16], "tanh", output="linear").double().requires_grad_(False)
     smooth = apg_lidar.make_smooth("nav", SMOOTH, env)
     params = list(policy.parameters())
 
     def loss() -> torch.Tensor:
-        env._state, _ = start.clone(), env._generator.set_state(gen)
+        env.load_state_dict(start)
         torch.manual_seed(1)  # the same exploration noise every time
         batch = apg_lidar.rollout(env, policy, value, smooth, 6, 0.99, 0.2, ("success", "collision"))
         assert not batch["next", "done"].any(), "an episode ended inside the horizon: pick other starts"

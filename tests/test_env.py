@@ -410,7 +410,7 @@ def test_transforms_compose():
     fresh = TransformedEnv(make_nav_env("arena", num_envs=3, max_steps=6, seed=9), Compose(StepCounter(), RewardSum()))
     fresh.base_env.load_state_dict(sd)
     assert torch.equal(fresh.base_env.curriculum.radius, env.base_env.curriculum.radius)
-    assert torch.equal(fresh.base_env._generator.get_state(), env.base_env._generator.get_state())
+    assert torch.equal(fresh.base_env.generator.get_state(), env.base_env.generator.get_state())
     torch.testing.assert_close(r["next", "episode_reward"], r["next", "episode", "return"], atol=1e-4, rtol=1e-5)
     frames = TransformedEnv(
         make_nav_env("arena", num_envs=2),
@@ -459,10 +459,36 @@ def test_compiled_step_matches_eager():
     torch.testing.assert_close(runs[1], runs[0], atol=1e-4, rtol=1e-4)
 
 
-def test_checkpoints_written_before_the_extra_state_hooks_still_load():
+def test_state_dict_taken_and_loaded_back_undoes_a_run():
+    """``sd = env.state_dict()``, any run of the env, ``env.load_state_dict(sd)``: the env goes on as if
+    that run never happened (generator, episodes in flight, curriculum and episode pool), e.g. for
+    observation statistics gathered on the training env itself."""
+    kw = dict(num_envs=4, max_steps=6, reset={"pool": 6}, curriculum={"mode": "growth", "growth": 0.05})
+
+    def steps(env, n):  # from the episodes in flight, or from a reset before the first one
+        pol, out = SeededPolicy(5), []
+        td = env.reset() if env.state is None else TensorDict({}, batch_size=[4])
+        for _ in range(n):
+            o, td = env.step_and_maybe_reset(pol(td))
+            out.append(torch.cat([o["next", "observation"], o["next", "pose"], o["next", "curriculum_radius"]], -1))
+        return torch.stack(out)
+
+    for started in (False, True):  # before the first reset, and with episodes and a pool in flight
+        env, ref = make_nav_env("arena", seed=4, **kw), make_nav_env("arena", seed=4, **kw)
+        if started:
+            steps(env, 9), steps(ref, 9)
+        sd = env.state_dict()
+        env.rollout(20, SeededPolicy(1), break_when_any_done=False)  # moves the curriculum, the generator and the pool
+        assert int(env.curriculum.placements) > int(ref.curriculum.placements)
+        env.load_state_dict(sd)
+        assert (env.state is None) == (not started) and int(env.curriculum.placements) == int(ref.curriculum.placements)
+        assert torch.equal(steps(env, 15), steps(ref, 15))
+
+
+def test_a_saved_env_state_missing_a_part_is_refused():
     env = make_nav_env("arena", num_envs=2, max_steps=5)
-    env.rollout(12, SeededPolicy(0), break_when_any_done=False)
-    old = env.get_extra_state()  # the {"curriculum", "generator"} dict older checkpoints hold
-    restored = make_nav_env("arena", num_envs=2, max_steps=5, seed=77)
-    restored.load_state_dict(old)
-    assert torch.equal(restored.curriculum.placements, env.curriculum.placements)
+    env.rollout(3, SeededPolicy(0), break_when_any_done=False)
+    sd = env.state_dict()
+    del sd["_extra_state"]["pool"]
+    with pytest.raises(ValueError, match=r"lacks \['pool'\]"):
+        make_nav_env("arena", num_envs=2, max_steps=5).load_state_dict(sd)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from torchnav.checkpoint import save_checked
 from torchnav.export import (VerificationError, compare, compile_test, export, export_c, export_cortex_m4f, export_onnx,
                              find_compiler, missing_tools, network_of, quantize, quantized_actor, random_observations,
                              reference, run_onnx, verify_c, verify_cortex_m4f)
@@ -122,7 +123,7 @@ def test_discrete_checkpoint_and_embedded_policy(tmp_path):
     """A recipe checkpoint embedding the actor under "policy" exports like an actor.pt."""
     path = saved(tmp_path, "argmax")
     ck = tmp_path / "checkpoint.pt"
-    torch.save({"policy": torch.load(path, weights_only=True), "step": 3}, ck)
+    save_checked(ck, {"policy": torch.load(path, weights_only=True), "step": 3})
     r = export(ck, onnx_path=tmp_path / "d.onnx", c_dir=tmp_path / "c", verify=100)
     assert r["onnx"]["ok"] and r["onnx"]["index_mismatches"] == 0
     assert r["c"] is None if not HAS_CC else r["c"]["ok"]
@@ -141,9 +142,13 @@ def test_cli_errors(tmp_path, capsys, monkeypatch):
     assert main([str(tmp_path / "missing.pt"), "--c", str(tmp_path / "c")]) == 2
     assert "checkpoint not found" in capsys.readouterr().err
     junk = tmp_path / "junk.pt"
-    torch.save({"weights": torch.zeros(3)}, junk)
+    save_checked(junk, {"weights": torch.zeros(3)})
     assert main([str(junk), "--c", str(tmp_path / "c")]) == 2
-    assert "not a torchnav policy" in capsys.readouterr().err
+    assert "not a torchnav policy checkpoint: format None, expected 'torchnav-actor-v2' or 'torchnav-actor-v3'" in capsys.readouterr().err
+    unhashed = tmp_path / "unhashed.pt"  # an actor.pt saved by hand, or by a torchnav older than the content hash
+    torch.save({k: v for k, v in torch.load(SHIPPED, weights_only=True).items() if k != "sha256"}, unhashed)
+    assert main([str(unhashed), "--c", str(tmp_path / "c")]) == 2
+    assert "no 'sha256' content hash (format 'torchnav-actor-v2')" in capsys.readouterr().err
     text = tmp_path / "text.pt"
     text.write_text("hello")
     assert main([str(text), "--c", str(tmp_path / "c")]) == 2

@@ -50,6 +50,24 @@ def test_reset_to_with_a_mask_leaves_the_other_envs_alone_and_later_episodes_are
     assert td["observation"].isfinite().all()
 
 
+def test_reset_options_are_reset_to_and_go_through_a_transformed_env():
+    """``reset_to`` is ``env.reset(td, start=, goal=)``: TorchRL passes the options on to ``_reset``,
+    so a TransformedEnv's reset places them too; unknown options and a lone start are named."""
+    from torchrl.envs import StepCounter, TransformedEnv
+
+    a, b = _env(), TransformedEnv(_env(), StepCounter())
+    ta = a.reset_to(torch.tensor(STARTS), torch.tensor(GOALS))
+    tb = b.reset(start=torch.tensor(STARTS), goal=torch.tensor(GOALS))
+    assert torch.equal(ta["observation"], tb["observation"]) and torch.equal(a.state.world.boxes, b.base_env.state.world.boxes)
+    assert (tb["step_count"] == 0).all()
+    with pytest.raises(ValueError, match=r"NavEnv.reset: unknown options \['speed'\]; it takes \['start', 'goal'\]"):
+        a.reset(speed=1.0)
+    with pytest.raises(ValueError, match="'start' and 'goal' go together"):
+        a.reset(start=torch.tensor(STARTS))
+    with pytest.raises(ValueError, match=r"LineEnv.reset: unknown options \['start'\]; it takes none"):
+        make_line_env(num_envs=2).reset(start=torch.zeros(2, 3))
+
+
 def test_reset_to_is_reproducible_by_seed():
     worlds = []
     for _ in range(2):

@@ -459,7 +459,7 @@ def test_randomized_parameters_lie_in_their_ranges_and_follow_the_seed():
     other.reset()
     assert not torch.equal(p.v_max, other._state.env_params.v_max)
     # A new episode draws new parameters.
-    state, _ = env.task.reset(env._state, torch.ones(512, dtype=torch.bool), env.curriculum, env._generator)
+    state, _ = env.task.reset(env.state, torch.ones(512, dtype=torch.bool), env.curriculum, env.generator, env.pool)
     assert not torch.equal(state.env_params.v_max, p.v_max)
 
 

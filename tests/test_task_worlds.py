@@ -69,7 +69,7 @@ def test_family_curriculum_ignores_episodes_below_the_current_level():
     assert fresh.difficulty.tolist() == pytest.approx([0.4])  # the one episode at 0.3 counts
 
 
-def test_curriculum_state_round_trips_and_old_checkpoints_load():
+def test_curriculum_state_round_trips_and_refuses_a_partial_one():
     env = NavEnv(worlds_cfg(curriculum=True), num_envs=4, seed=0)
     env.curriculum.difficulty = torch.tensor([0.4, 0.5, 0.6])
     sd = env.state_dict()
@@ -77,8 +77,9 @@ def test_curriculum_state_round_trips_and_old_checkpoints_load():
     fresh.load_state_dict(sd)
     assert fresh.curriculum.difficulty.tolist() == pytest.approx([0.4, 0.5, 0.6])
     cur = sd["_extra_state"]["curriculum"]
-    old = {k: v for k, v in cur.items() if k not in ("difficulty", "family_success")}
-    fresh.curriculum.load_state_dict(old)  # a checkpoint from before procedural worlds
+    partial = {k: v for k, v in cur.items() if k not in ("difficulty", "family_success")}
+    with pytest.raises(KeyError, match=r"missing \['difficulty', 'family_success'\]"):
+        fresh.curriculum.load_state_dict(partial)
     with pytest.raises(ValueError, match="one per world family"):
         NavEnv(NavConfig(), num_envs=4).curriculum.load_state_dict(cur)
 
@@ -103,7 +104,7 @@ def test_bad_worlds_config_is_named(worlds, match):
 
 def test_partial_reset_regenerates_only_the_masked_envs_and_map_path_is_unchanged():
     from torchnav.envs import make_nav_env
-    from torchnav.tasks import NavTask
+    from torchnav.tasks import EpisodePool, NavTask
     from torchnav.worlds import slot_counts
 
     t = NavTask(worlds_cfg(), 6)
@@ -111,7 +112,7 @@ def test_partial_reset_regenerates_only_the_masked_envs_and_map_path_is_unchange
     s, c = t.initial_state(CurriculumState.initial(t.cfg.curriculum, worlds=t.cfg.worlds), g)
     assert t.spec is None and s.world.segments.shape == (6, slot_counts(list(FAMILIES))["segments"], 4)
     mask = torch.tensor([True, False, False, True, False, False])
-    r, _ = t.reset(s, mask, c, g)
+    r, _ = t.reset(s, mask, c, g, EpisodePool())  # procedural worlds: always pooled
     keep = ~mask
     for key in ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask"):
         assert torch.equal(getattr(r.world, key)[keep], getattr(s.world, key)[keep])

@@ -2,8 +2,8 @@
 
 Every ``actor.pt`` and recipe ``checkpoint.pt`` goes through :func:`save_checked` (a ``"sha256"``
 of the content; temporary file, ``fsync``, rename) and :func:`load_checked` (refuses a changed
-hash or a NaN/inf tensor, naming the file and key). Files written before the hash existed (no
-``"sha256"`` key) still load, unchecked."""
+hash or a NaN/inf tensor, naming the file and key). A file without the hash was not written by
+torchnav and is refused."""
 
 from __future__ import annotations
 
@@ -89,11 +89,11 @@ def save_checked(path: str | Path, payload: dict[str, Any]) -> None:
 
 
 def load_checked(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Load a payload written by :func:`save_checked` (or an older, hash-less torchnav file).
+    """Load a payload written by :func:`save_checked`.
 
     Raises ``FileNotFoundError`` for a missing file and :class:`CheckpointError`, naming
-    the file, for one that cannot be read, is not a dict, does not match its content
-    hash, or holds a NaN or inf in a floating-point tensor.
+    the file, for one that cannot be read, is not a dict, has no content hash or does not
+    match it, or holds a NaN or inf in a floating-point tensor.
     """
     path = Path(path)
     if not path.is_file():
@@ -104,7 +104,10 @@ def load_checked(path: str | Path, map_location: str | torch.device = "cpu") -> 
         raise CheckpointError(f"cannot load {path}: the file is damaged or not a torch file ({type(e).__name__}: {e})") from e
     if not isinstance(ck, dict):
         raise CheckpointError(f"{path}: not a torchnav checkpoint (a {type(ck).__name__}, not a dict)")
-    if HASH_KEY in ck and ck[HASH_KEY] != content_hash(ck):
+    if HASH_KEY not in ck:
+        raise CheckpointError(f"{path}: not a torchnav file: it has no {HASH_KEY!r} content hash (format {ck.get('format')!r}); "
+                              "every checkpoint and actor.pt torchnav writes (torchnav.checkpoint.save_checked) has one")
+    if ck[HASH_KEY] != content_hash(ck):
         raise CheckpointError(f"{path}: content does not match its sha256 (the file was damaged or edited after it was written)")
     bad = _non_finite({k: v for k, v in ck.items() if k != HASH_KEY})
     if bad is not None:

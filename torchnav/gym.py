@@ -71,6 +71,51 @@ def _episode_options(env: NavEnv | LineEnv, options: dict[str, Any] | None, batc
     return start.reshape(b, 3), goal.reshape(b, 2)
 
 
+# What both adapters do with the TorchRL env. Arrays handed out are copies, never views: they
+# must not alias the env's tensors (the vector env edits them at autoreset).
+
+def _restart(env: NavEnv | LineEnv, seed: int | None, given: tuple[torch.Tensor, torch.Tensor] | None) -> TensorDict:
+    """New episodes in every env; with ``seed`` the env starts over as if new (generator re-seeded,
+    navigation curriculum back to its start); ``given`` starts and goals (``NavEnv.reset_to``)."""
+    if seed is not None:
+        env.set_seed(int(seed))
+        if isinstance(env, NavEnv):
+            env.restart_curriculum()
+    return env.reset() if given is None else env.reset_to(*given)
+
+
+def _advance(env: NavEnv | LineEnv, td: TensorDict | None, action: torch.Tensor) -> TensorDict:
+    """One step of the TorchRL env from its last outputs ``td``; its ``"next"`` outputs (no autoreset)."""
+    if td is None:
+        raise RuntimeError("call reset() before step()")
+    return env.step(td.clone(False).set("action", action))["next"]
+
+
+def _action_tensor(env: NavEnv | LineEnv, space: spaces.Space, actions: Any) -> torch.Tensor:
+    """Gymnasium actions for ``env.num_envs`` envs (indices into a ``Discrete`` ``space``, or ``(B, 2)``
+    values) as the TorchRL env's action; a ValueError names a wrong shape or value."""
+    a = torch.as_tensor(np.asarray(actions), device=env.device)
+    b = env.num_envs
+    if isinstance(space, spaces.Discrete):
+        if a.shape != (b,):
+            raise ValueError(f"actions must have shape ({b},) (one index per env), got {tuple(a.shape)}")
+        n = space.n
+        if a.dtype.is_floating_point or (a < 0).any() or (a >= n).any():
+            raise ValueError(f"discrete actions must be integers in [0, {n}), got {actions!r}")
+        return torch.nn.functional.one_hot(a.long(), n).to(env.action_spec.dtype)
+    if a.shape != (b, 2):
+        raise ValueError(f"actions must have shape ({b}, 2) (two values in [-1, 1] per env), got {tuple(a.shape)}")
+    return a.to(torch.float32)
+
+
+def _observations(td: TensorDict) -> np.ndarray:
+    return np.array(td["observation"].to(torch.float32).cpu().numpy(), copy=True)
+
+
+def _flags(env: NavEnv | LineEnv, td: TensorDict) -> dict[str, np.ndarray]:
+    return {k: np.array(td[k].reshape(-1).cpu().numpy(), copy=True) for k in env.flag_keys}
+
+
 class TorchnavVectorEnv(VectorEnv):
     """A Gymnasium 1.x vector env over one batched TorchRL env (autoreset ``SAME_STEP``)."""
 
@@ -82,7 +127,6 @@ class TorchnavVectorEnv(VectorEnv):
         self.single_observation_space, self.single_action_space = _spaces(env)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._discrete = isinstance(self.single_action_space, spaces.Discrete)
         self._td: TensorDict | None = None
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
@@ -99,23 +143,13 @@ class TorchnavVectorEnv(VectorEnv):
         given = _episode_options(self.env, options, (self.num_envs,))  # checked before the env changes
         super().reset(seed=seed)
         if seed is not None:
-            self.env.set_seed(int(seed))
             self.action_space.seed(int(seed))
-            if isinstance(self.env, NavEnv):
-                self.env.restart_curriculum()
-        self._td = self.env.reset() if given is None else self.env.reset_to(*given)
-        return self._obs(self._td), self._info(self._td)
-
-    def _advance(self, action: torch.Tensor) -> TensorDict:
-        """One step of the TorchRL env from the last outputs; its ``"next"`` outputs (no autoreset)."""
-        if self._td is None:
-            raise RuntimeError("call reset() before step()")
-        self._td = self.env.step(self._td.clone(False).set("action", action))["next"]
-        return self._td
+        self._td = _restart(self.env, seed, given)
+        return _observations(self._td), _flags(self.env, self._td)
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        nxt = self._advance(self._action_tensor(actions))
-        obs, info = self._obs(nxt), self._info(nxt)
+        nxt = self._td = _advance(self.env, self._td, _action_tensor(self.env, self.single_action_space, actions))
+        obs, info = _observations(nxt), _flags(self.env, nxt)
         reward = nxt["reward"].reshape(-1).cpu().numpy()
         terminated = nxt["terminated"].reshape(-1).cpu().numpy()
         truncated = nxt["truncated"].reshape(-1).cpu().numpy()
@@ -125,8 +159,8 @@ class TorchnavVectorEnv(VectorEnv):
             fresh = self.env.reset(TensorDict({"_reset": mask}, batch_size=self.env.batch_size, device=self.env.device))
             final_info = {k: v.copy() for k, v in info.items()}
             final_obs = obs.copy()
-            obs[done] = self._obs(fresh)[done]
-            for k, v in self._info(fresh).items():  # the finished envs' flags are their new episode's
+            obs[done] = _observations(fresh)[done]
+            for k, v in _flags(self.env, fresh).items():  # the finished envs' flags are their new episode's
                 info[k][done] = v[done]
             info.update(final_obs=final_obs, _final_obs=done.copy(), final_info=final_info, _final_info=done.copy())
             self._td = fresh
@@ -134,28 +168,6 @@ class TorchnavVectorEnv(VectorEnv):
 
     def close(self, **kwargs: Any) -> None:
         self.env.close()
-
-    def _action_tensor(self, actions: Any) -> torch.Tensor:
-        a = torch.as_tensor(np.asarray(actions), device=self.env.device)
-        if self._discrete:
-            if a.shape != (self.num_envs,):
-                raise ValueError(f"actions must have shape ({self.num_envs},) (one index per env), got {tuple(a.shape)}")
-            n = self.single_action_space.n
-            if a.dtype.is_floating_point or (a < 0).any() or (a >= n).any():
-                raise ValueError(f"discrete actions must be integers in [0, {n}), got {actions!r}")
-            return torch.nn.functional.one_hot(a.long(), n).to(self.env.action_spec.dtype)
-        if a.shape != (self.num_envs, 2):
-            raise ValueError(f"actions must have shape ({self.num_envs}, 2) (two values in [-1, 1] per env), got {tuple(a.shape)}")
-        return a.to(torch.float32)
-
-    # Copies, never views: the arrays handed out (and edited at autoreset) must not alias the env's tensors.
-
-    @staticmethod
-    def _obs(td: TensorDict) -> np.ndarray:
-        return np.array(td["observation"].to(torch.float32).cpu().numpy(), copy=True)
-
-    def _info(self, td: TensorDict) -> dict[str, Any]:
-        return {k: np.array(td[k].reshape(-1).cpu().numpy(), copy=True) for k in self.env.flag_keys}
 
 
 class TorchnavEnv(gymnasium.Env):
@@ -166,34 +178,31 @@ class TorchnavEnv(gymnasium.Env):
     def __init__(self, env: NavEnv | LineEnv):
         if env.num_envs != 1:
             raise ValueError(f"TorchnavEnv wraps a batch of one env, got num_envs={env.num_envs}; use TorchnavVectorEnv for batches")
-        self._vec = TorchnavVectorEnv(env)
-        self.observation_space = self._vec.single_observation_space
-        self.action_space = self._vec.single_action_space
-
-    @property
-    def env(self) -> NavEnv | LineEnv:
-        return self._vec.env
+        self.env = env
+        self.observation_space, self.action_space = _spaces(env)
+        self._td: TensorDict | None = None
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        given = _episode_options(self.env, options)  # one robot: start (3,), goal (2,); checked before anything changes
-        options = None if given is None else {"start": given[0], "goal": given[1]}
+        """As :meth:`TorchnavVectorEnv.reset` for one robot: ``options`` ``{"start": (3,), "goal": (2,)}``."""
+        given = _episode_options(self.env, options)  # checked before anything changes
         super().reset(seed=seed)
         if seed is not None:
             self.action_space.seed(int(seed))
-        obs, info = self._vec.reset(seed=seed, options=options)
-        return obs[0], {k: bool(v[0]) for k, v in info.items()}
+        self._td = _restart(self.env, seed, given)
+        return _observations(self._td)[0], {k: bool(v[0]) for k, v in _flags(self.env, self._td).items()}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         a = np.asarray(action)
-        nxt = self._vec._advance(self._vec._action_tensor(a[None] if self._vec._discrete else a.reshape(1, -1)))
+        a = a[None] if isinstance(self.action_space, spaces.Discrete) else a.reshape(1, -1)
+        nxt = self._td = _advance(self.env, self._td, _action_tensor(self.env, self.action_space, a))
         terminated, truncated = bool(nxt["terminated"].item()), bool(nxt["truncated"].item())
-        info: dict[str, Any] = {k: bool(v[0]) for k, v in self._vec._info(nxt).items()}
+        info: dict[str, Any] = {k: bool(v[0]) for k, v in _flags(self.env, nxt).items()}
         if terminated or truncated:
             info["is_success"] = info.get("success", info.get("lap_completed", False))
-        return self._vec._obs(nxt)[0], float(nxt["reward"].item()), terminated, truncated, info
+        return _observations(nxt)[0], float(nxt["reward"].item()), terminated, truncated, info
 
     def close(self) -> None:
-        self._vec.close()
+        self.env.close()
 
 
 def navigation_env(seed: int | None = 0, device: str = "cpu", **kwargs: Any) -> TorchnavEnv:

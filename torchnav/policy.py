@@ -23,7 +23,7 @@ from torchrl.modules import recurrent_mode
 from .checkpoint import HASH_KEY, load_checked, save_checked
 
 FORMAT = "torchnav-actor-v2"
-RECURRENT_FORMAT = "torchnav-actor-v3"  # v2 plus a GRU cell: a RecurrentActor (v2 files still load)
+RECURRENT_FORMAT = "torchnav-actor-v3"  # v2 plus a GRU cell: a RecurrentActor (feed-forward actors stay v2)
 FORMATS = (FORMAT, RECURRENT_FORMAT)
 RECURRENT = ("off", "gru")  # train.recurrent of the PPO recipes
 STATE_KEY = "recurrent_state"  # the hidden state ``(..., state_size)`` each env carries in its TensorDict
@@ -298,7 +298,8 @@ def load_policy(path: str | Path, map_location: str | torch.device = "cpu") -> S
     if ck.get("format") not in FORMATS and isinstance(ck.get("policy"), dict):
         ck = ck["policy"]
     if ck.get("format") not in FORMATS:
-        raise ValueError(f"{path}: not a torchnav policy checkpoint (format {ck.get('format')!r}; expected one of {FORMATS})")
+        raise ValueError(f"{path}: not a torchnav policy checkpoint: format {ck.get('format')!r}, expected {FORMAT!r} or {RECURRENT_FORMAT!r} "
+                         "(an actor.pt, or a recipe's checkpoint.pt holding one under 'policy')")
     try:
         if ck["format"] == RECURRENT_FORMAT:
             actor = RecurrentActor(ck["obs_size"], ck["out_size"], ck["hidden"], ck["activation"], ck["output"], ck["state_size"])

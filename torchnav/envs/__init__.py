@@ -1,6 +1,6 @@
 """TorchRL environments."""
 
 from .line_env import LineEnv, make_line_env
-from .nav_env import NavEnv, make_env, make_nav_env
+from .nav_env import NavEnv, make_nav_env
 
-__all__ = ["NavEnv", "make_nav_env", "make_env", "LineEnv", "make_line_env"]
+__all__ = ["NavEnv", "make_nav_env", "LineEnv", "make_line_env"]

@@ -87,19 +87,28 @@ class BatchedEnv(EnvBase):
     # -- TorchRL hooks: one reset and one step for every task ------------------------------
 
     flag_keys: tuple[str, ...] = ()  # the task's outcome flags, each (B, 1) bool in every output
+    reset_options: tuple[str, ...] = ()  # keyword arguments ``reset`` passes on to ``_new_state`` (NavEnv: start, goal)
 
     # ``reset(set_state=True)`` (TorchRL's deterministic reset) continues the episodes the env holds,
     # drawing nothing: after ``load_state_dict``, a collector's ``reset(set_state=True)`` resumes a run.
     _supports_set_state = True
 
-    def _reset(self, tensordict: TensorDictBase | None = None, set_state: bool = False, **kwargs: Any) -> TensorDictBase:
+    def _reset(self, tensordict: TensorDictBase | None = None, set_state: bool = False, **options: Any) -> TensorDictBase:
+        """New episodes in every env, or where the ``"_reset"`` mask ``(B, 1)`` of ``tensordict`` is set;
+        ``options`` (``env.reset(td, **options)``, one of :attr:`reset_options` each) say how to place them.
+        With ``set_state=True`` the episodes the env holds go on (nothing is drawn)."""
+        unknown = sorted(set(options) - set(self.reset_options))
+        if unknown:
+            raise ValueError(f"{type(self).__name__}.reset: unknown options {unknown}; it takes {list(self.reset_options) or 'none'}")
         if set_state:
             if self._state is None:
                 raise RuntimeError(f"{type(self).__name__}.reset(set_state=True): the env holds no episodes to continue")
+            if options:
+                raise ValueError(f"{type(self).__name__}.reset: set_state=True continues the episodes it holds; it takes no {sorted(options)}")
         else:
             mask = None if tensordict is None else tensordict.get("_reset", None)
             # Out of place: the previous step's outputs share storage with the old state.
-            self._state = self._new_state(None if self._state is None or mask is None else mask.reshape(-1))
+            self._state = self._new_state(None if self._state is None or mask is None else mask.reshape(-1), **options)
         s = self._state
         # Separate tensors per key: TorchRL may write into them in place, so they must not alias.
         false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
@@ -147,7 +156,8 @@ class BatchedEnv(EnvBase):
         """Cut the autograd graph of the current state (between the horizons of a differentiable rollout)."""
         self._state = self._state.detach()
 
-    def _new_state(self, mask: torch.Tensor | None) -> Any:
+    def _new_state(self, mask: torch.Tensor | None, **options: Any) -> Any:
+        """The state after new episodes in every env (``mask`` None) or where ``mask`` ``(B,)`` is True."""
         raise NotImplementedError
 
     def _reset_view(self, state: Any) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -181,13 +191,23 @@ class BatchedEnv(EnvBase):
 
     @property
     def state(self):
-        """The current task state (read-only use: worlds, goals, poses of every env)."""
+        """The current task state (read-only use: worlds, goals, poses of every env); None before the first reset."""
         return self._state
 
-    # Checkpoint state goes through nn.Module's extra-state hooks, so ``env.state_dict()`` and
+    @property
+    def generator(self) -> torch.Generator:
+        """The ``torch.Generator`` every reset and step of this env draws from (seeded by ``seed``)."""
+        return self._generator
+
+    # The env's whole state (generator, episodes in flight, and NavEnv's curriculum and episode
+    # pool) goes through nn.Module's extra-state hooks, so ``env.state_dict()`` and
     # ``env.load_state_dict(sd)`` keep nn.Module's signatures and a TransformedEnv's state_dict
-    # includes it (under ``base_env._extra_state``). The episodes in flight are saved as plain
-    # nested dicts of tensors (checkpoints load with ``weights_only=True``).
+    # includes it (under ``base_env._extra_state``). ``state_dict()`` holds copies: taking it,
+    # running the env (an observation-statistics rollout, say) and loading it back leaves the env
+    # as if that run never happened. The episodes are saved as plain nested dicts of tensors
+    # (checkpoints load with ``weights_only=True``).
+
+    extra_state_keys: tuple[str, ...] = ("generator",)  # what every saved env state holds ("episodes" once reset)
 
     def get_extra_state(self) -> dict[str, Any]:
         """The generator's state and the episodes in flight (NavEnv adds the curriculum and its episode pool)."""
@@ -197,10 +217,14 @@ class BatchedEnv(EnvBase):
         return out
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
-        if "episodes" in state:
-            self._state = self.state_from_dict(state["episodes"])
-        if "generator" in state:
-            self._generator.set_state(state["generator"])
+        missing = [k for k in self.extra_state_keys if k not in state]
+        if missing:
+            raise ValueError(f"{type(self).__name__}.load_state_dict: the saved env state lacks {missing} "
+                             f"(it holds {sorted(state)}; an env's state_dict() holds {list(self.extra_state_keys)})")
+        # Rebuilding the episodes may place new ones first (a template of the state's structure),
+        # which draws from the generator: restore it after them.
+        self._state = self.state_from_dict(state["episodes"]) if "episodes" in state else None
+        self._generator.set_state(state["generator"])
 
     def state_from_dict(self, d: dict[str, Any]) -> Any:
         """A task state (of any batch size) rebuilt from its ``to_dict()`` form, in the structure
@@ -214,10 +238,3 @@ class BatchedEnv(EnvBase):
                               TensorDict.from_dict(d, batch_size=[n]))
         except (RuntimeError, KeyError) as e:
             raise ValueError(f"{type(self).__name__}: saved episodes do not fit this env's task config ({e})") from None
-
-    def load_state_dict(self, state_dict: Any, strict: bool = True, assign: bool = False) -> Any:
-        """nn.Module's, also accepting the ``{"curriculum", "generator"}`` dict that checkpoints
-        written before the extra-state hooks hold."""
-        if "generator" in state_dict and "_extra_state" not in state_dict:
-            state_dict = {"_extra_state": dict(state_dict)}
-        return super().load_state_dict(state_dict, strict=strict, assign=assign)

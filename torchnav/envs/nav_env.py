@@ -1,6 +1,7 @@
 """TorchRL environment for the navigation task: a :class:`~torchnav.envs.base.BatchedEnv` around
-``NavTask`` that also keeps the curriculum. Per-episode statistics are running values under
-``"episode"``: read them where ``done`` is set."""
+``NavTask`` that also keeps what its resets carry from one to the next: the curriculum
+(``env.curriculum``) and the pool of pre-sampled episodes (``env.pool``). Per-episode statistics
+are running values under ``"episode"``: read them where ``done`` is set."""
 
 from __future__ import annotations
 
@@ -10,8 +11,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Unbounded
 
-from ..deprecation import renamed_function
-from ..tasks import CurriculumState, NavConfig, NavState, NavTask, after_episodes, after_family_episodes
+from ..tasks import CurriculumState, EpisodePool, NavConfig, NavState, NavTask, after_episodes, after_family_episodes
 from .base import BatchedEnv
 
 
@@ -22,10 +22,10 @@ class NavEnv(BatchedEnv):
 
     def __init__(self, cfg: NavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0,
                  compile_step: bool = False):
-        self._given: tuple[Any, Any] | None = None  # starts and goals for the next reset (reset_to)
         super().__init__(cfg, num_envs, device, seed)
         if compile_step:  # the simulator step through torch.compile (not TorchRL's `compile`, which compiles the whole env step)
             self.task.compile_step()
+        self.pool = EpisodePool()  # where partial resets take their episodes from when the task is pooled; new at every full reset
         self.restart_curriculum()
 
     def restart_curriculum(self) -> None:
@@ -45,6 +45,7 @@ class NavEnv(BatchedEnv):
     # -- the task hooks of BatchedEnv ---------------------------------------------------------
 
     flag_keys = ("success", "collision")
+    reset_options = ("start", "goal")
 
     def reset_to(self, start: Any, goal: Any, mask: torch.Tensor | None = None) -> TensorDictBase:
         """:meth:`reset`, with the new episodes starting at the poses ``start`` ``(B, 3)`` ``[x, y, heading]``
@@ -52,25 +53,29 @@ class NavEnv(BatchedEnv):
         ``mask`` ``(B,)``, only in those envs. The map's random objects and moving obstacles are placed
         around them as usual, and the curriculum does not move (``NavTask.place_episodes``). Later
         episodes are sampled again. A map only: procedural worlds bring their own starts and goals.
+        The same as ``env.reset(td, start=start, goal=goal)`` (``td`` holding ``"_reset"``).
 
         Bad starts or goals (shape, not finite, a start within the robot's radius of an obstacle, a
         goal inside one) raise ``ValueError`` naming the envs, before the env changes."""
-        self._given = (start, goal)
-        try:
-            if mask is None:
-                return self.reset()
+        td = None
+        if mask is not None:
             reset = torch.as_tensor(mask, dtype=torch.bool, device=self.device).reshape(*self.batch_size, 1)
-            return self.reset(TensorDict({"_reset": reset}, batch_size=self.batch_size, device=self.device))
-        finally:
-            self._given = None
+            td = TensorDict({"_reset": reset}, batch_size=self.batch_size, device=self.device)
+        return self.reset(td, start=start, goal=goal)
 
-    def _new_state(self, mask: torch.Tensor | None) -> NavState:
-        if self._given is not None:
-            return self.task.place_episodes(self._state, *self._given, self.curriculum, self._generator, mask)
+    def _new_state(self, mask: torch.Tensor | None, start: Any = None, goal: Any = None) -> NavState:
+        """New episodes: at the given ``start`` and ``goal`` (``reset_to``), else sampled, a full reset
+        from scratch (a new pool) and a partial one through the pool when the task is pooled; the
+        curriculum moves with every sampled goal."""
+        if (start is None) != (goal is None):
+            raise ValueError("NavEnv.reset: options 'start' and 'goal' go together")
+        if start is not None:
+            return self.task.place_episodes(self._state, start, goal, self.curriculum, self._generator, mask)
         if mask is None:
+            self.pool = EpisodePool()
             state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
         else:
-            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator)
+            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator, self.pool)
         return state
 
     def _reset_view(self, s: NavState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -92,20 +97,16 @@ class NavEnv(BatchedEnv):
 
     # -- state for checkpoints and recording ------------------------------------------------
 
+    extra_state_keys = ("curriculum", "generator", "pool")
+
     def get_extra_state(self) -> dict[str, Any]:
         """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""
-        t = self.task
-        pool = None if t._pool is None else {"episodes": t._pool.clone().to_dict(), "pos": t._pool_pos, "passes": t._pool_passes}
-        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": pool}
+        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": self.pool.state_dict()}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
-        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum
+        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum and the pool
         self.curriculum.load_state_dict(state["curriculum"])
-        if "pool" in state:  # absent from checkpoints written before episodes were saved
-            pool = state["pool"]
-            t = self.task
-            t._pool = None if pool is None else self.state_from_dict(pool["episodes"])
-            t._pool_pos, t._pool_passes = (0, 0) if pool is None else (int(pool["pos"]), int(pool["passes"]))
+        self.pool.load_state_dict(state["pool"], self.state_from_dict)
 
 
 def make_nav_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
@@ -117,5 +118,3 @@ def make_nav_env(map: str = "arena", num_envs: int = 64, device: torch.device | 
     cfg = NavConfig.from_dict({"map": map, **overrides})
     return NavEnv(cfg, num_envs=num_envs, device=device, seed=seed)
 
-
-make_env = renamed_function(make_nav_env, "torchnav.envs.make_env")

@@ -7,13 +7,11 @@ yaw in radians counter-clockwise from +x.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import asdict, dataclass
 from typing import Any
 
 import torch
 
-from torchnav.deprecation import renamed_attribute
 from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.state import World, make_world, pad_world
 
@@ -92,7 +90,6 @@ class MapSpec:
     random_circles: RandomCircles | None = None
     movers: RandomMovers | None = None
     styles: ObstacleStyles = ObstacleStyles()
-    moving_circles = renamed_attribute("moving_circles", "movers")  # the old name, also for moving boxes
 
     @property
     def n_fixed_boxes(self) -> int:
@@ -141,11 +138,3 @@ class MapSpec:
             return x
 
         return plain(asdict(self))
-
-
-def __getattr__(name: str) -> Any:
-    """``MovingCircles``, the old name of :class:`RandomMovers` (it also held moving boxes), with a warning."""
-    if name == "MovingCircles":
-        warnings.warn("torchnav.maps.spec.MovingCircles is deprecated: use torchnav.maps.spec.RandomMovers", DeprecationWarning, stacklevel=2)
-        return RandomMovers
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

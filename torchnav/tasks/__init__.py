@@ -1,5 +1,6 @@
 """Tasks built on the simulator (no TorchRL here)."""
 
+from .base import EpisodePool
 from .config import ActionConfig, CurriculumConfig, LidarConfig, NavConfig, ObservationConfig, ResetConfig, RewardConfig, RobotConfig, WorldsConfig
 from .line import LineState, LineTask
 from .line_config import LINE_TERMS, LineConfig
@@ -10,5 +11,5 @@ from .rewards import PRESETS, TERMS, resolve_weights
 __all__ = [
     "NavConfig", "RobotConfig", "LidarConfig", "CurriculumConfig", "RewardConfig", "ObservationConfig",
     "ActionConfig", "ResetConfig", "WorldsConfig", "CurriculumState", "after_placements", "after_episodes", "after_family_episodes", "NavState",
-    "NavTask", "PRESETS", "TERMS", "resolve_weights", "LineConfig", "LineTask", "LineState", "LINE_TERMS",
+    "NavTask", "EpisodePool", "PRESETS", "TERMS", "resolve_weights", "LineConfig", "LineTask", "LineState", "LINE_TERMS",
 ]

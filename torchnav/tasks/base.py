@@ -1,8 +1,10 @@
-"""What every task shares: its frozen config, the batch size, device and dtype, and the state
-fields every episode carries (:class:`TaskState`)."""
+"""What every task shares: its frozen config, the batch size, device and dtype, the state
+fields every episode carries (:class:`TaskState`), and the pool of pre-sampled episodes that
+resets may draw from (:class:`EpisodePool`)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import torch
@@ -22,6 +24,47 @@ class TaskState:
     history: Tensor  # (B, H, D) the last H observation frames, newest last
     ep_return: Tensor  # (B,) running sum of the reward
     ep_terms: Tensor  # (B, T) running sum of each weighted reward term
+
+
+@dataclass
+class EpisodePool:
+    """Pre-sampled episodes that partial resets hand out in order (``reset.pool``, procedural worlds;
+    docs/tasks.md, "Episode pool"). Whoever resets owns it (``NavEnv.pool``) and passes it to every
+    ``NavTask.reset``, which draws from it and refills it in place, as it draws from the generator.
+    A full reset (``initial_state``) starts a new one."""
+
+    episodes: Any = None  # a task state (P, ...): the episodes of this pool; None until the first pooled reset
+    pos: int = 0  # episodes handed out in this pass over them
+    passes: int = 0  # passes over them so far (each after the first reshuffles them)
+
+    def take(self, n: int, reuse: int, generator: torch.Generator, refill: Callable[[int], Any]) -> Any:
+        """The next ``n`` episodes ``(n, ...)``. When this pass runs short, a new pass over the same
+        episodes in a new order while fewer than ``reuse`` passes were made, else ``refill(n)`` (a
+        new pool of at least ``n`` episodes)."""
+        size = 0 if self.episodes is None else self.episodes.batch_size[0]
+        if self.episodes is not None and self.pos + n > size and self.passes < reuse:
+            self.episodes = self.episodes[torch.randperm(size, generator=generator, device=generator.device).to(self.episodes.device)]
+            self.pos, self.passes = 0, self.passes + 1
+        if self.episodes is None or self.pos + n > size:
+            self.episodes = refill(n)
+            self.pos, self.passes = 0, 1
+        out = self.episodes[self.pos : self.pos + n]
+        self.pos += n
+        return out
+
+    def state_dict(self) -> dict[str, Any] | None:
+        """``None`` for an empty pool, else ``{"episodes": nested dict of tensors (copies), "pos", "passes"}``."""
+        if self.episodes is None:
+            return None
+        return {"episodes": self.episodes.clone().to_dict(), "pos": self.pos, "passes": self.passes}
+
+    def load_state_dict(self, sd: dict[str, Any] | None, rebuild: Callable[[dict[str, Any]], Any]) -> None:
+        """Restore :meth:`state_dict`'s output; ``rebuild`` turns the saved episodes back into a task state
+        (``BatchedEnv.state_from_dict``)."""
+        if sd is None:
+            self.episodes, self.pos, self.passes = None, 0, 0
+        else:
+            self.episodes, self.pos, self.passes = rebuild(sd["episodes"]), int(sd["pos"]), int(sd["passes"])
 
 
 class BatchedTask:

@@ -31,21 +31,23 @@ class CurriculumState:
             family_success=torch.zeros(f, dtype=dtype, device=device),
         )
 
+    FIELDS = ("radius", "placements", "success_rate", "difficulty", "family_success")
+
     def state_dict(self) -> dict[str, Tensor]:
-        return {k: getattr(self, k).clone() for k in ("radius", "placements", "success_rate", "difficulty", "family_success")}
+        return {k: getattr(self, k).clone() for k in self.FIELDS}
 
     def load_state_dict(self, sd: dict[str, Tensor]) -> None:
-        missing = {"radius", "placements", "success_rate"} - set(sd)
+        """Restore :meth:`state_dict`'s output; ``KeyError`` names missing fields, ``ValueError`` a shape
+        that does not fit (the world families are one entry each)."""
+        missing = set(self.FIELDS) - set(sd)
         if missing:
             raise KeyError(f"curriculum state is missing {sorted(missing)}")
-        self.radius = sd["radius"].to(self.radius)
-        self.placements = sd["placements"].to(self.placements)
-        self.success_rate = sd["success_rate"].to(self.success_rate)
-        for k in ("difficulty", "family_success"):  # absent from checkpoints made before procedural worlds
-            if k in sd:
-                if sd[k].shape != getattr(self, k).shape:
-                    raise ValueError(f"curriculum state {k!r} has shape {tuple(sd[k].shape)}, expected {tuple(getattr(self, k).shape)} (one per world family)")
-                setattr(self, k, sd[k].to(getattr(self, k)))
+        for k in self.FIELDS:
+            if sd[k].shape != getattr(self, k).shape:
+                raise ValueError(f"curriculum state {k!r} has shape {tuple(sd[k].shape)}, expected {tuple(getattr(self, k).shape)}"
+                                 + (" (one per world family)" if k in ("difficulty", "family_success") else ""))
+        for k in self.FIELDS:
+            setattr(self, k, sd[k].to(getattr(self, k)))
 
 
 def after_placements(cur: CurriculumState, cfg: CurriculumConfig, n_placed: Tensor) -> CurriculumState:

@@ -18,7 +18,6 @@ from ..sim import SimState, init_state, make_world
 from ..sim import step as sim_step
 from ..sim.floor import band_coverage, floor_readings, nearest_distance, sensor_points
 from ..tracks import load_track, path_pose, project_on_path, wrap_delta
-from ..deprecation import renamed_keywords
 from .base import BatchedTask, TaskState
 from .line_config import LineConfig
 from .rewards import weighted
@@ -63,7 +62,6 @@ class LineTask(BatchedTask):
         a = action.clamp(-1.0, 1.0)
         return (a + 1.0) * (0.5 * vmax) if self.cfg.action.forward_only else a * vmax
 
-    @renamed_keywords(gen="generator")
     def sense(self, pose: Tensor, generator: torch.Generator | None) -> tuple[Tensor, Tensor]:
         """Sensor readings ``(B, K)`` (noisy with a generator) and the noise-free on-line flag ``(B,)``
         (some sensor's coverage above the threshold)."""
@@ -87,7 +85,6 @@ class LineTask(BatchedTask):
 
     # -- reset ----------------------------------------------------------------------------
 
-    @renamed_keywords(gen="generator")
     def start_poses(self, n: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
         """``n`` start poses ``(n, 3)`` and their arc lengths ``(n,)``: on the lap path, with the sensor
         array's centre over the line (heading along the chord to the point ``forward`` m ahead),
@@ -116,19 +113,16 @@ class LineTask(BatchedTask):
             stop_steps=zi.clone(), time_off_line=zf.clone(), **self._episode_start(sim, readings),
         )
 
-    @renamed_keywords(gen="generator")
     def initial_state(self, generator: torch.Generator) -> LineState:
         """Fresh episodes in every env."""
         return self._fresh(self.num_envs, generator)
 
-    @renamed_keywords(gen="generator")
     def reset(self, state: LineState, mask: Tensor, generator: torch.Generator) -> LineState:
         """New episodes where ``mask`` ``(B,)`` is True; the other envs are left bit-identical (``replace_where``)."""
         return self.replace_where(state, mask, lambda idx: self._fresh(idx.numel(), generator))[0]
 
     # -- step -------------------------------------------------------------------------------
 
-    @renamed_keywords(gen="generator")
     def step(self, state: LineState, action: Tensor, generator: torch.Generator | None = None) -> tuple[LineState, dict]:
         """Advance every env one step. Pure: ``state`` is not modified.
 

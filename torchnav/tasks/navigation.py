@@ -22,8 +22,7 @@ from ..sim.randomize import max_delay
 from ..worlds import mix_worlds, slot_counts
 from ..worlds.guide import GUIDE_CELLS, goal_distance
 from ..sim import step as sim_step
-from ..deprecation import renamed_attribute, renamed_keywords
-from .base import BatchedTask, TaskState
+from .base import BatchedTask, EpisodePool, TaskState
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
 from .rewards import resolve_weights, reward_terms
@@ -32,8 +31,6 @@ from .sampling import MoverSource, place_movers, place_random_objects, sample_go
 
 class NavTask(BatchedTask):
     """Configured navigation task for ``num_envs`` envs on ``device``."""
-
-    obs_dim = renamed_attribute("obs_dim", "frame_size")
 
     def __init__(self, cfg: NavConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
         super().__init__(cfg, num_envs, device, dtype)
@@ -73,8 +70,6 @@ class NavTask(BatchedTask):
         self._obs_scale = self._make_obs_scale()
         guarded = cfg.action.stop_clearance is not None
         self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device) if guarded else None
-        self._pool: NavState | None = None  # pre-sampled episodes (cfg.reset.pool > 0)
-        self._pool_pos = self._pool_passes = 0
         self._sim_step = sim_step
 
     def compile_step(self) -> None:
@@ -221,23 +216,32 @@ class NavTask(BatchedTask):
         path = goal_distance(field, frame, goal, pose[:, :2])
         return torch.where(path.isfinite(), path, last)
 
-    @renamed_keywords(gen="generator")
+    @property
+    def pooled(self) -> bool:
+        """Whether partial resets draw from an :class:`EpisodePool` (``reset.pool > 0``, or procedural
+        worlds: generating worlds costs the same for 1 env or 1,000)."""
+        return bool(self.cfg.reset.pool > 0 or self.families)
+
     def initial_state(self, cur: CurriculumState, generator: torch.Generator) -> tuple[NavState, CurriculumState]:
-        """Fresh episodes in every env."""
+        """Fresh episodes in every env (sampled afresh, not from a pool: start a new :class:`EpisodePool`
+        with them) and the curriculum after their placements."""
         idx = torch.arange(self.num_envs, device=self.device)
-        self._pool = None
         return self._fresh(idx, cur, generator), after_placements(cur, self.cfg.curriculum, torch.tensor(self.num_envs, device=self.device))
 
-    @renamed_keywords(gen="generator")
-    def reset(self, state: NavState, mask: Tensor, cur: CurriculumState, generator: torch.Generator) -> tuple[NavState, CurriculumState]:
+    def reset(self, state: NavState, mask: Tensor, cur: CurriculumState, generator: torch.Generator,
+              pool: EpisodePool | None = None) -> tuple[NavState, CurriculumState]:
         """New episodes for the envs where ``mask`` ``(B,)`` is True; the others are left bit-identical.
+        Returns the new state and the curriculum after the placements (each placed goal advances it).
 
-        Only they are sampled (``replace_where``; or, with ``cfg.reset.pool > 0``, taken from a
-        pool of pre-sampled episodes the task keeps between calls). Each placed goal advances
-        the curriculum.
+        Only those envs are sampled (``replace_where``), or, when the task is :attr:`pooled`, their
+        episodes are taken from ``pool`` (required then; the caller keeps passing the same one),
+        which this call draws from and refills in place.
         """
-        pooled = self.cfg.reset.pool > 0 or self.families  # generating worlds costs the same for 1 env or 1,000
-        state, n = self.replace_where(state, mask, lambda idx: self._from_pool(idx.numel(), cur, generator) if pooled else self._fresh(idx, cur, generator))
+        if self.pooled and pool is None:
+            raise ValueError("NavTask.reset: this task draws its resets from an episode pool (reset.pool > 0 or worlds.families): "
+                             "pass pool=EpisodePool() and the same pool to every later reset")
+        draw = (lambda idx: self._from_pool(pool, idx.numel(), cur, generator)) if self.pooled else (lambda idx: self._fresh(idx, cur, generator))
+        state, n = self.replace_where(state, mask, draw)
         return state, (after_placements(cur, self.cfg.curriculum, torch.tensor(n, device=self.device)) if n else cur)
 
     def place_episodes(self, state: NavState | None, start: Tensor, goal: Tensor, cur: CurriculumState, generator: torch.Generator,
@@ -298,24 +302,18 @@ class NavTask(BatchedTask):
                 raise ValueError(f"place_episodes: the {name} of {noun} {names[bad][:10].tolist()} lies {what} an obstacle of map "
                                  f"{self.cfg.map!r} or its edge (clearance {[round(v, 3) for v in clear[bad][:10].tolist()]} m)")
 
-    def _from_pool(self, n: int, cur: CurriculumState, generator: torch.Generator) -> NavState:
-        """``n`` episodes from the pool of pre-sampled ones, refilled when it runs short; each pooled
-        episode fits any env. Why, and ``reset.reuse``: docs/tasks.md, "Episode pool"."""
-        size = 0 if self._pool is None else self._pool.batch_size[0]
-        if self._pool is not None and self._pool_pos + n > size and self._pool_passes < self.cfg.reset.reuse:
-            self._pool = self._pool[torch.randperm(size, generator=generator, device=generator.device).to(self.device)]
-            self._pool_pos, self._pool_passes = 0, self._pool_passes + 1
-        if self._pool is None or self._pool_pos + n > size:
+    def _from_pool(self, pool: EpisodePool, n: int, cur: CurriculumState, generator: torch.Generator) -> NavState:
+        """``n`` episodes from ``pool``, refilled with ``reset.pool`` new ones (at least ``n``) when it runs
+        short; each pooled episode fits any env. Why, and ``reset.reuse``: docs/tasks.md, "Episode pool"."""
+
+        def refill(n: int) -> NavState:
             size = max(self.cfg.reset.pool or self.num_envs, n)
-            self._pool = self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, generator)
-            self._pool_pos, self._pool_passes = 0, 1
-        out = self._pool[self._pool_pos : self._pool_pos + n]
-        self._pool_pos += n
-        return out
+            return self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, generator)
+
+        return pool.take(n, self.cfg.reset.reuse, generator, refill)
 
     # -- step -------------------------------------------------------------------------
 
-    @renamed_keywords(gen="generator")
     def step(self, state: NavState, action: Tensor, generator: torch.Generator | None = None) -> tuple[NavState, dict[str, Tensor]]:
         """Advance every env one step. Pure: ``state`` is not modified.
 
