@@ -18,13 +18,13 @@ from pathlib import Path
 from typing import Any, Callable, Iterable
 
 import torch
-from _config import LOGGER_BACKENDS, RECIPES, Recipe, check_backend, check_threads  # noqa: F401
-from _config_load import RESUME_CHANGES, load_config, parse_cli, resumed_config, save_config  # noqa: F401  (the recipes use them from here)
 
 from torchnav.checkpoint import load_checked, save_checked
 from torchnav.config import ConfigError, to_dict
 from torchnav.protocol import LineProtocol, NavProtocol, TaskProtocol
 from torchnav.tasks import NavConfig
+from torchnav.train_config import (LOGGER_BACKENDS, RECIPES, RESUME_CHANGES, Recipe, check_backend, check_threads,  # noqa: F401
+                                   load_config, parse_cli, resumed_config, save_config)  # (the recipes use them from here)
 
 
 def task_protocol(cfg: Recipe) -> TaskProtocol:
