@@ -28,12 +28,12 @@ sys.path.insert(0, str(ROOT / "recipes"))
 
 
 def main(argv: list[str]) -> list[dict]:
-    import _config_load
     import apg_lidar
 
     from torchnav.checkpoint import load_checked
     from torchnav.envs import NavEnv
     from torchnav.policy import Actor, load_policy
+    from torchnav.train_config import build
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", help="an apg_lidar run's checkpoint.pt")
@@ -48,7 +48,7 @@ def main(argv: list[str]) -> list[dict]:
     ck = load_checked(a.checkpoint)
     if ck.get("format") != "torchnav-apg-lidar-v1":
         raise SystemExit(f"{a.checkpoint}: not an apg_lidar checkpoint")
-    cfg = _config_load.build("apg_lidar", _config_load.migrated(ck["config"]), [], str(a.checkpoint))
+    cfg = build("apg_lidar", ck["config"], source=str(a.checkpoint))
     sp = load_policy(a.checkpoint)
     obs_size = sp.actor.obs_size
     loc_net = Actor(obs_size, 2, cfg.train.hidden, cfg.train.activation, output="linear")

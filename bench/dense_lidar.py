@@ -42,19 +42,26 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import common  # noqa: E402  (sets TORCHINDUCTOR_COMPILE_THREADS before torch is imported)
 
 import torch  # noqa: E402
-from sim_throughput import make_load  # noqa: E402
+from sim_throughput import ROBOT, make_load  # noqa: E402
 
 from torchnav.sim import LidarParams, SimParams, World, init_state, make_world, planar_world, scan_is_exact, step  # noqa: E402
 
 HALF = 10.0  # m: the dense room spans [-10, 10] x [-10, 10]
 N_POSTS, N_BOXES = 300, 100
+
+
+def _lidar(**layout: Any) -> LidarParams:
+    """The navigation task's lidar (the one of sim_throughput's rows) with ``layout``."""
+    return replace(ROBOT.lidar, **layout)
+
+
 LOADS = {
-    "standard": LidarParams(n_rays=20, fov=math.pi, max_range=10.0),
+    "standard": _lidar(n_rays=20, fov=math.pi, max_range=10.0),
     # The broad phase tuned for these worlds: one boundary ray per obstacle for the sectors,
     # 5 rays per obstacle for the ray scan, 16 wide obstacles per kind on every ray.
-    "dense-sectors": LidarParams(n_rays=20, fov=2 * math.pi, max_range=10.0, scan="sectors", window=0, dense_slots=16),
-    "dense-rays": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0, window=2, dense_slots=16),
-    "dense-brute": LidarParams(n_rays=180, fov=2 * math.pi, max_range=10.0, dense_slots=10**9),
+    "dense-sectors": _lidar(n_rays=20, fov=2 * math.pi, max_range=10.0, scan="sectors", window=0, dense_slots=16),
+    "dense-rays": _lidar(n_rays=180, fov=2 * math.pi, max_range=10.0, window=2, dense_slots=16),
+    "dense-brute": _lidar(n_rays=180, fov=2 * math.pi, max_range=10.0, dense_slots=10**9),
     "generalist": None,  # the recipe config's own lidar (make_generalist)
 }
 GENERALIST_CONFIG = Path(__file__).resolve().parent.parent / "recipes" / "configs" / "ppo_generalist.yaml"
@@ -107,7 +114,7 @@ def bench_load(load: str, mode: str, num_envs: int, args: argparse.Namespace) ->
     if load == "generalist":
         params, state, world, actions = make_generalist(num_envs, args.seed)
     else:
-        params = replace(SimParams(), lidar=LOADS[load])
+        params = replace(ROBOT, lidar=LOADS[load])
         state, world, actions = make_load(num_envs, "cpu", args.seed, params) if load == "standard" else make_dense(num_envs, params, args.seed)
     rec: dict[str, Any] = {"bench": "dense_lidar", "load": load, "mode": mode, "num_envs": num_envs, "obstacles": int(world.segment_mask[0].sum() + world.circle_mask[0].sum() + world.box_mask[0].sum()),
                            "readings": params.lidar.n_rays, "scan": params.lidar.scan, "compile_s": None,

@@ -41,6 +41,7 @@ import argparse
 import math
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -53,7 +54,6 @@ from torchnav.sim import (  # noqa: E402
     CameraParams,
     EnvParams,
     ImuParams,
-    LidarParams,
     SimParams,
     SimState,
     World,
@@ -70,6 +70,7 @@ from torchnav.sim import (  # noqa: E402
     step,
 )
 from torchnav.sim.step import step_odometry  # noqa: E402
+from torchnav.tasks import NavConfig  # noqa: E402
 
 ALL_MODES = ("eager", "eager-batched", "eager-unrolled", "compiled", "compiled-batched", "cudagraphs")
 DEFAULT_MODES = ("eager", "eager-batched", "compiled", "compiled-batched", "cudagraphs")
@@ -81,16 +82,25 @@ CUDA_TARGET = 100_000_000  # env-steps/s at the best batch size on one H100
 ARENA_HALF = 5.0  # m: the arena spans [-5, 5] x [-5, 5]
 N_BOXES, N_CIRCLES = 4, 4
 LOAD = "arena 10x10 m, 4 walls + 4 boxes + 4 circles random per env, lidar 20 rays / 180 deg / 10 m"
+# The robot and lidar of every row: the navigation task's, driving both ways at up to 0.5 m/s.
+ROBOT = NavConfig.from_dict({"robot": {"v_max": 0.5}, "action": {"forward_only": False}}).sim_params()
+
+
+def _camera(n_cols: int) -> CameraParams:
+    """The navigation task's camera, ``n_cols`` wide."""
+    return NavConfig.from_dict({"camera": {"enabled": True, "n_cols": n_cols}}).sim_params().camera
+
+
 # Simulator options benchmarked next to the plain step: name -> (SimParams overrides, moving discs per env).
 OPTIONS: dict[str, tuple[dict[str, Any], int | str]] = {
     "plain": ({}, 0),
     "imu": ({"imu": ImuParams()}, 0),  # noise-free: the bench steps without a generator, like the plain rows
-    "camera16": ({"camera": CameraParams(n_cols=16)}, 0),
-    "camera64": ({"camera": CameraParams(n_cols=64)}, 0),
+    "camera16": ({"camera": _camera(16)}, 0),
+    "camera64": ({"camera": _camera(64)}, 0),
     "movers4": ({}, 4),  # 4 discs bouncing inside the arena, seen by lidar and collision
     "boxmovers4": ({}, "boxes"),  # 4 boxes (the discs' rows, their half extents and yaws in Movers.boxes) bouncing inside the arena
     "pedestrians4": ({}, "pedestrians"),  # 4 pedestrians cycling through 4 waypoints, avoiding each other and the robot
-    "all": ({"imu": ImuParams(), "camera": CameraParams(n_cols=64)}, 4),
+    "all": ({"imu": ImuParams(), "camera": _camera(64)}, 4),
     "randomized": ({}, 0),  # per-env EnvParams: limits, 0-2 steps of actuator delay, lidar offset and range, radius
 }
 # The ranges of the "randomized" option (noise and dropout need a generator, which the bench does not pass).
@@ -102,7 +112,7 @@ RANDOMIZE = {"v_max": (0.3, 0.5), "omega_max": (0.5, 1.0), "lin_acc_max": (1.0, 
 
 
 def bench_params(option: str = "plain") -> SimParams:
-    return SimParams(lidar=LidarParams(n_rays=20, fov=math.pi, max_range=10.0), **OPTIONS[option][0])
+    return replace(ROBOT, **OPTIONS[option][0])
 
 
 def make_load(num_envs: int, device: str, seed: int = 0, params: SimParams | None = None, movers: int | str = 0) -> tuple[SimState, World, list[torch.Tensor]]:

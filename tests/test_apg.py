@@ -12,12 +12,12 @@ from tensordict import TensorDict
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "recipes"))
 import apg_lidar  # noqa: E402
-from _config import NavSmoothConfig  # noqa: E402
 
 from torchnav.config import merge, to_dict  # noqa: E402
 from torchnav.envs import NavEnv  # noqa: E402
 from torchnav.policy import Actor  # noqa: E402
 from torchnav.tasks import NavConfig, NavTask  # noqa: E402
+from torchnav.train_config import NavSmoothConfig  # noqa: E402
 
 SMOOTH = NavSmoothConfig(ramp_frames=0, contact=-10.0, contact_margin=0.3)
 

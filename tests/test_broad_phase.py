@@ -10,7 +10,9 @@ from dataclasses import replace
 import pytest
 import torch
 
-from torchnav.sim import LidarParams, World, lidar_scan, scan_is_exact
+from params import lidar_params
+
+from torchnav.sim import World, lidar_scan, scan_is_exact
 from torchnav.sim.raycast import BROAD_PHASE_RATIO
 
 F64 = torch.float64
@@ -45,11 +47,11 @@ def poses(batch: int, seed: int, dtype=F64, half=5.5) -> torch.Tensor:
 
 
 LIDARS = {  # dense_slots below every kind's slot count, so the broad phase runs for all kinds
-    "20 rays 180 deg": LidarParams(n_rays=20, fov=math.pi, max_range=8.0, dense_slots=16),
-    "72 rays 360 deg, offset": LidarParams(n_rays=72, fov=2 * math.pi, max_range=8.0, offset=(0.1, -0.05, 0.3), window=4, dense_slots=16),
-    "45 rays 270 deg": LidarParams(n_rays=45, fov=math.radians(270), max_range=8.0, window=3, dense_slots=16),
-    "20 sectors 360 deg": LidarParams(n_rays=20, fov=2 * math.pi, max_range=8.0, scan="sectors", window=0, dense_slots=16),
-    "12 sectors 120 deg": LidarParams(n_rays=12, fov=math.radians(120), max_range=8.0, scan="sectors", window=1, dense_slots=16),
+    "20 rays 180 deg": lidar_params(n_rays=20, fov=math.pi, max_range=8.0, dense_slots=16),
+    "72 rays 360 deg, offset": lidar_params(n_rays=72, fov=2 * math.pi, max_range=8.0, offset=(0.1, -0.05, 0.3), window=4, dense_slots=16),
+    "45 rays 270 deg": lidar_params(n_rays=45, fov=math.radians(270), max_range=8.0, window=3, dense_slots=16),
+    "20 sectors 360 deg": lidar_params(n_rays=20, fov=2 * math.pi, max_range=8.0, scan="sectors", window=0, dense_slots=16),
+    "12 sectors 120 deg": lidar_params(n_rays=12, fov=math.radians(120), max_range=8.0, scan="sectors", window=1, dense_slots=16),
 }
 
 
@@ -77,7 +79,7 @@ def test_scan_is_exact_flags_an_overflowing_env():
     world = World(segments=torch.zeros(2, 0, 4, dtype=F64), segment_mask=torch.zeros(2, 0, dtype=torch.bool),
                   circles=circles, circle_mask=torch.ones(2, 30, dtype=torch.bool),
                   boxes=torch.zeros(2, 0, 5, dtype=F64), box_mask=torch.zeros(2, 0, dtype=torch.bool), batch_size=[2])
-    lidar = LidarParams(n_rays=360, fov=2 * math.pi, dense_slots=8)
+    lidar = lidar_params(n_rays=360, fov=2 * math.pi, dense_slots=8)
     pose = torch.zeros(2, 3, dtype=F64)
     assert scan_is_exact(pose, world, lidar).tolist() == [False, True]
     # With room for every wide post the same scan is exact and equals brute force.
@@ -99,7 +101,7 @@ def _padded(special: list[list[float]], tiny, n: int = 40) -> torch.Tensor:
 
 def test_grazing_rays_and_sensors_inside_obstacles_match_brute_force():
     # 8 rays 45 degrees apart; ray 4 looks along +x, ray 0 along -x, ray 6 along +y.
-    lidar = LidarParams(n_rays=8, fov=2 * math.pi, dense_slots=4, window=1)
+    lidar = lidar_params(n_rays=8, fov=2 * math.pi, dense_slots=4, window=1)
     seg = _padded([[2.0, 0.0, 5.0, 0.0], [3.0, -1.0, 3.0, 1.0]], lambda x, y: torch.stack((x, y, x + 0.02, y)))  # collinear with ray 4; across it
     circ = _padded([[0.0, 3.0, 1.0], [-3.0, 1.0, 1.0]], lambda x, y: torch.stack((x, y, torch.tensor(0.01, dtype=F64))))  # hit by ray 6; tangent to ray 0
     box = _padded([[-6.0, -1.0, 1.0, 1.0, 0.0]], lambda x, y: torch.stack((x, y, *torch.tensor([0.01, 0.01, 0.0], dtype=F64))))  # top side along ray 0
@@ -148,8 +150,8 @@ def test_defaults_are_exact_on_generated_worlds(family):
 
     for d in (0.0, 0.5, 1.0):
         b = make_worlds(family, 32, d, torch.Generator().manual_seed(5))
-        for lidar in (LidarParams(n_rays=20, fov=math.pi), LidarParams(n_rays=180, fov=math.pi),
-                      LidarParams(n_rays=20, fov=2 * math.pi, scan="sectors", window=0)):
+        for lidar in (lidar_params(n_rays=20, fov=math.pi), lidar_params(n_rays=180, fov=math.pi),
+                      lidar_params(n_rays=20, fov=2 * math.pi, scan="sectors", window=0)):
             assert scan_is_exact(b.start, b.world, lidar).all(), (family, d, lidar)
 
 

@@ -6,12 +6,14 @@ import math
 import pytest
 import torch
 
-from torchnav.sim import CameraParams, World, camera_depth, camera_image, camera_rays, cast_rays, make_movers, mover_world
+from params import camera_params
+
+from torchnav.sim import World, camera_depth, camera_image, camera_rays, cast_rays, make_movers, mover_world
 from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.raycast import KINDS
 from torchnav.sim.state import planar_rows
 
-CAM = CameraParams(n_cols=40, n_rows=12, fov=1.6, max_range=12.0, offset=(0.05, -0.02, 0.1))
+CAM = camera_params(n_cols=40, n_rows=12, fov=1.6, max_range=12.0, offset=(0.05, -0.02, 0.1))
 
 
 def reference_depth(pose, world, cam, movers=None):
@@ -142,7 +144,7 @@ def _world(**given):
 def test_grazing_columns_read_either_side_of_the_edge():
     """Columns aimed exactly at a segment's end, a box's corner and along a circle's tangent may hit
     or miss under rounding: each reads the grazed point's depth or what lies behind the obstacle."""
-    cam = CameraParams(n_cols=9, fov=1.2, max_range=20.0)
+    cam = camera_params(n_cols=9, fov=1.2, max_range=20.0)
     m = (4.5 - 2 - 0.5) / cam.focal  # column 2 looks along y = m x
     n = [-m / math.hypot(1.0, m), 1.0 / math.hypot(1.0, m)]  # the line's normal
     back = [8.0, -20.0, 8.0, 20.0]

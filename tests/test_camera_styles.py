@@ -5,6 +5,8 @@ import math
 import pytest
 import torch
 
+from params import camera_params
+
 from torchnav.maps import MapError, parse_map
 from torchnav.sim import CameraParams, ObstacleStyles, camera_image, make_world
 
@@ -26,7 +28,7 @@ def test_map_styles_colour_and_raise_their_obstacles():
     assert spec.styles.boxes == ((0.4, (10, 200, 30)), (None, None))
     assert spec.styles.circles == ((None, (250, 0, 250)), (None, None))
     world = spec.build_world(2)
-    cam = CameraParams(n_cols=9, n_rows=96, fov=math.radians(30))
+    cam = camera_params(n_cols=9, n_rows=96, fov=math.radians(30))
     pose = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, math.pi]])  # facing the styled box, then the styled circle
     depth, rgb = camera_image(pose, world, cam, styles=spec.styles)
     mid = cam.n_cols // 2
@@ -46,7 +48,7 @@ def test_map_styles_colour_and_raise_their_obstacles():
 def test_styles_apply_to_their_slots_only():
     """Style entry i is slot i of its kind; slots past the tuple keep the kind's defaults."""
     world = make_world(1, boxes=[[2.0, 0.0, 0.1, 2.0, 0.0], [1.0, 3.0, 0.1, 0.1, 0.0]])
-    cam = CameraParams(n_cols=3, n_rows=8, fov=0.3)
+    cam = camera_params(n_cols=3, n_rows=8, fov=0.3)
     styles = ObstacleStyles(boxes=((None, (1, 2, 3)),))
     table = styles.table("boxes", 2, cam.box_height, cam.box_color, torch.zeros(1))
     assert table.tolist() == [[cam.box_height, 1, 2, 3], [cam.box_height, *cam.box_color]]

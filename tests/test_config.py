@@ -1,18 +1,20 @@
-"""Strict configuration: from_dict/to_dict/merge, NavConfig validation, and the config
-reference in docs/tasks.md matching the dataclass defaults."""
+"""The config schema: from_dict/to_dict/merge, validation (every problem at once), each default
+declared once, the simulator's parameters derived from the task config, and the config reference
+in docs/tasks.md matching the dataclass defaults."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
 import re
+import typing
 from pathlib import Path
 
 import pytest
 import yaml
 
-from torchnav.config import ConfigError, TaskConfig, fields_as, from_dict, merge, to_dict
-from torchnav.tasks import NavConfig
+from torchnav.config import Checked, Config, ConfigError, from_dict, merge, to_dict
+from torchnav.tasks import LineConfig, NavConfig
 from torchnav.tasks.config import CurriculumConfig, LidarConfig, RobotConfig
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "tasks.md"
@@ -47,15 +49,15 @@ def test_unknown_keys_are_named(data, key, hint):
 @pytest.mark.parametrize(
     "data, where",
     [
-        ({"max_steps": "500"}, "env.max_steps: expected an integer"),
-        ({"max_steps": 500.0}, "env.max_steps: expected an integer"),
-        ({"max_steps": True}, "env.max_steps: expected an integer"),
-        ({"goal_tolerance": "near"}, "env.goal_tolerance: expected a number"),
+        ({"max_steps": "500"}, "env.max_steps='500': must be an integer >= 1"),
+        ({"max_steps": 500.0}, "env.max_steps=500.0: must be an integer >= 1"),
+        ({"max_steps": True}, "env.max_steps=True: must be an integer >= 1"),
+        ({"goal_tolerance": "near"}, "env.goal_tolerance='near': must be a finite number > 0"),
         ({"check_actions": 1}, "env.check_actions: expected true or false"),
         ({"map": 3}, "env.map: expected a string"),
         ({"robot": 1.0}, "env.robot: expected a mapping"),
-        ({"lidar": {"offset": [0.0, 0.0]}}, "env.lidar.offset: expected 3 values"),
-        ({"lidar": {"offset": 0.0}}, "env.lidar.offset: expected a list"),
+        ({"lidar": {"offset": [0.0, 0.0]}}, "env.lidar.offset=[0.0, 0.0]: must be (x m, y m, yaw rad)"),
+        ({"lidar": {"offset": 0.0}}, "env.lidar.offset=0.0: must be (x m, y m, yaw rad)"),
         ({"action": {"discrete_set": [[1.0, 0.0], [1.0]]}}, "env.action.discrete_set[1]: expected 2 values"),
         ({"reward": {"weights": {"goal": "lots"}}}, "env.reward.weights.goal: expected a number"),
         ({"reward": {"weights": [1.0]}}, "env.reward.weights: expected a mapping"),
@@ -78,31 +80,67 @@ def test_numbers_are_coerced_sensibly():
 @pytest.mark.parametrize(
     "data, msg",
     [
-        ({"max_steps": 0}, "max_steps must be >= 1"),
-        ({"goal_tolerance": 0.0}, "goal_tolerance must be > 0"),
-        ({"curriculum": {"mode": "linear"}}, "curriculum.mode must be one of"),
+        ({"max_steps": 0}, "env.max_steps=0: must be an integer >= 1"),
+        ({"goal_tolerance": 0.0}, "env.goal_tolerance=0.0: must be a finite number > 0"),
+        ({"curriculum": {"mode": "linear"}}, "env.curriculum.mode='linear': must be growth or success or off"),
         ({"curriculum": {"min_radius": 2.0, "init_radius": 1.0}}, "min_radius <= init_radius <= max_radius"),
         ({"curriculum": {"init_radius": 20.0}}, "min_radius <= init_radius <= max_radius"),
-        ({"curriculum": {"growth": -0.1}}, "growth and success_step must be >= 0"),
-        ({"curriculum": {"success_smoothing": 0.0}}, "success_smoothing must be in (0, 1]"),
-        ({"action": {"mode": "joystick"}}, "action.mode must be one of"),
-        ({"action": {"discrete_set": [[1.0, 0.0]]}}, "at least 2 actions"),
-        ({"observation": {"history": 0}}, "observation.history must be >= 1"),
-        ({"worlds": {"anywhere_goals": 1.2}}, "worlds.anywhere_goals must be in [0, 1], got 1.2"),
-        ({"worlds": {"below_level": 2.0}}, "worlds.below_level must be in [0, 1], got 2.0"),
-        ({"reset": {"candidates": 0}}, "reset.candidates must be >= 1"),
-        ({"reset": {"goal_clearance": -0.1}}, "reset clearances must be >= 0"),
-        ({"lidar": {"n_rays": 30, "n_sectors": 20}}, "robot/lidar: lidar.n_sectors must divide n_rays=30"),
-        ({"lidar": {"max_range": 0.0}}, "robot/lidar: lidar needs 0 <= min_range < max_range"),
-        ({"robot": {"dt": 0.0}}, "robot/lidar: dt must be > 0"),
-        ({"robot": {"integrator": "rk4"}}, "robot/lidar"),
-        ({"map": "warehouse", "worlds": {"families": {"rooms": 1.0}}}, "map: 'warehouse' is not used when worlds.families is set"),
+        ({"curriculum": {"growth": -0.1}}, "env.curriculum.growth=-0.1: must be a finite number >= 0"),
+        ({"curriculum": {"success_step": -1.0}}, "env.curriculum.success_step=-1.0: must be a finite number >= 0"),
+        ({"curriculum": {"success_smoothing": 0.0}}, "env.curriculum.success_smoothing=0.0: must be a number in (0, 1]"),
+        ({"action": {"mode": "joystick"}}, "env.action.mode='joystick': must be continuous or discrete"),
+        ({"action": {"discrete_set": [[1.0, 0.0]]}}, "env.action.discrete_set needs at least 2 actions"),
+        ({"observation": {"history": 0}}, "env.observation.history=0: must be an integer >= 1"),
+        ({"worlds": {"anywhere_goals": 1.2}}, "env.worlds.anywhere_goals=1.2: must be a number in [0, 1]"),
+        ({"worlds": {"below_level": 2.0}}, "env.worlds.below_level=2.0: must be a number in [0, 1]"),
+        ({"reset": {"candidates": 0}}, "env.reset.candidates=0: must be an integer >= 1"),
+        ({"reset": {"goal_clearance": -0.1}}, "env.reset.goal_clearance=-0.1: must be a finite number >= 0"),
+        ({"reset": {"start_clearance": -0.1}}, "env.reset.start_clearance=-0.1: must be a finite number >= 0"),
+        ({"lidar": {"n_rays": 30, "n_sectors": 20}}, "env.lidar.n_sectors=20 must divide n_rays=30"),
+        ({"lidar": {"max_range": 0.0}}, "env.lidar.max_range=0.0: must be a finite number > 0"),
+        ({"lidar": {"min_range": 5.0, "max_range": 4.0}}, "env.lidar.max_range=4.0 must be greater than min_range=5.0"),
+        ({"lidar": {"fov_deg": 400.0}}, "env.lidar.fov_deg=400.0: must be a number of degrees in (0, 360]"),
+        ({"robot": {"dt": 0.0}}, "env.robot.dt=0.0: must be a finite number > 0"),
+        ({"robot": {"integrator": "rk4"}}, "env.robot.integrator='rk4': must be euler or exact"),
+        ({"imu": {"rate": 0.0}}, "env.imu.rate=0.0: must be a number > 0 (inf: no limit)"),
+        ({"camera": {"fov_deg": 180.0}}, "env.camera.fov_deg=180.0: must be a number of degrees in (0, 180)"),
+        ({"map": "warehouse", "worlds": {"families": {"rooms": 1.0}}}, "env.map: 'warehouse' is not used when worlds.families is set"),
     ],
 )
 def test_invalid_values_raise_config_error(data, msg):
     with pytest.raises(ConfigError) as e:
         NavConfig.from_dict(data)
     assert msg in str(e.value)
+
+
+def test_every_problem_is_reported_at_once():
+    """Unknown keys, wrong types, refused values and broken relations of every section, in one error."""
+    with pytest.raises(ConfigError) as e:
+        NavConfig.from_dict({"max_steps": 0, "robot": {"dt": 0.0, "v_maximum": 1.0}, "lidar": {"n_rays": 30, "n_sectors": 20},
+                             "curriculum": {"grwth": 0.1}, "reward": {"geodesic_margin": "wide"}})
+    msg = str(e.value)
+    for want in ("env.max_steps=0: must be an integer >= 1", "env.robot: unknown key 'v_maximum'", "env.robot.dt=0.0: must be",
+                 "env.lidar.n_sectors=20 must divide n_rays=30", "env.curriculum: unknown key 'grwth' (did you mean 'growth'?)",
+                 "env.reward.geodesic_margin='wide': must be a finite number >= 0"):
+        assert want in msg, (want, msg)
+    assert msg.startswith("invalid config:") and len(e.value.problems) == 6
+    with pytest.raises(ConfigError) as e:
+        LineConfig.from_dict({"max_steps": 0, "sensors": {"mode": "digital"}, "termination": {"max_path_distance": 0.0}})
+    assert sorted(p.split(":")[0] for p in e.value.problems) == ["env.max_steps=0", "env.sensors.mode='digital'", "env.termination.max_path_distance=0.0"]
+
+
+def test_a_config_checks_itself_on_construction():
+    """Direct construction validates like from_dict: each refused field, named, in one ConfigError (a ValueError)."""
+    from torchnav.sim import LidarParams
+
+    with pytest.raises(ConfigError) as e:
+        RobotConfig(dt=-1.0, radius=0.0)
+    assert e.value.problems == ["dt=-1.0: must be a finite number > 0", "radius=0.0: must be a finite number > 0"]
+    with pytest.raises(ValueError, match="n_rays=0: must be an integer >= 1"):
+        LidarParams(n_rays=0, fov=math.pi, min_range=0.0, max_range=10.0, offset=(0.0, 0.0, 0.0), noise_std=0.0, scan="rays",
+                    window=2, dense_slots=64)
+    with pytest.raises(TypeError, match="missing"):  # the simulator's robot and lidar have no defaults: a task config has them
+        LidarParams(n_rays=20)
 
 
 def test_config_is_frozen():
@@ -113,7 +151,7 @@ def test_config_is_frozen():
 
 def test_task_config_sections_default_to_their_own_defaults():
     @dataclasses.dataclass(frozen=True)
-    class Toy(TaskConfig):
+    class Toy(Config):
         steps: int = 3
         robot: RobotConfig  # a section: no default written, RobotConfig() is its default
         lidar: LidarConfig = LidarConfig(n_rays=40)  # an explicit default wins
@@ -125,15 +163,119 @@ def test_task_config_sections_default_to_their_own_defaults():
     assert NavConfig().robot == RobotConfig() and NavConfig().curriculum == CurriculumConfig()
 
 
-def test_fields_as_copies_the_fields_both_dataclasses_have():
-    from torchnav.sim import ImuParams, LidarParams
-    from torchnav.tasks.config import ImuConfig
+def test_sim_params_are_built_from_the_task_config():
+    from torchnav.sim import CameraParams, ImuParams
+    from torchnav.sim.floor import FloorSensorParams
 
-    imu = fields_as(ImuParams, ImuConfig(enabled=True, gyro_noise=0.1, rate=50.0))  # `enabled` is not an ImuParams field
-    assert imu == ImuParams(gyro_noise=0.1, rate=50.0)
-    lidar = fields_as(LidarParams, LidarConfig(n_rays=40, fov_deg=90.0, scan="sectors"), fov=math.pi / 2)  # values win
-    assert (lidar.n_rays, lidar.fov, lidar.scan, lidar.n_sectors) == (40, math.pi / 2, "sectors", 20)
-    assert NavConfig.from_dict({"lidar": {"fov_deg": 270.0}}).sim_params().lidar.fov == pytest.approx(1.5 * math.pi)
+    cfg = NavConfig.from_dict({"robot": {"radius": 0.25, "v_max": 0.7}, "action": {"forward_only": False},
+                               "lidar": {"fov_deg": 270.0, "n_rays": 40, "scan": "sectors"},
+                               "imu": {"enabled": True, "gyro_noise": 0.1, "rate": 50.0}, "camera": {"enabled": True, "fov_deg": 60.0}})
+    p = cfg.sim_params()
+    assert (p.robot_radius, p.v_min, p.v_max) == (0.25, -0.7, 0.7)
+    assert (p.lidar.n_rays, p.lidar.fov, p.lidar.scan) == (40, pytest.approx(1.5 * math.pi), "sectors")
+    assert p.imu == ImuParams(gyro_noise=0.1, rate=50.0) and type(p.imu) is ImuParams  # `enabled` is not an ImuParams field
+    assert isinstance(p.camera, CameraParams) and p.camera.fov == pytest.approx(math.pi / 3)
+    plain = NavConfig().sim_params()
+    assert plain.v_min == 0.0 and plain.imu is None and plain.camera is None
+    line = LineConfig.from_dict({"sensors": {"count": 3}, "robot": {"wheel_speed_max": 0.4}})
+    assert line.sensor_params() == FloorSensorParams(count=3) and line.sim_params().omega_max == pytest.approx(2 * 0.4 / 0.12)
+
+
+# --------------------------------------------------------------------------- each default declared once
+
+# Which task sections become which simulator parameters (NavConfig.sim_params, LineConfig.sim_params),
+# and the fields they rename: (task section, simulator class, {task field: simulator field}).
+BUILT_INTO = [
+    ("torchnav.tasks.config.RobotConfig", "torchnav.sim.params.SimParams", {"radius": "robot_radius"}),
+    ("torchnav.tasks.config.LidarConfig", "torchnav.sim.params.LidarParams", {"fov_deg": "fov"}),
+    ("torchnav.tasks.config.CameraConfig", "torchnav.sim.params.CameraParams", {"fov_deg": "fov"}),
+    ("torchnav.tasks.line_config.LineRobotConfig", "torchnav.sim.params.SimParams", {"radius": "robot_radius", "wheel_speed_max": "v_max"}),
+    ("torchnav.tasks.line_config.DistanceSensorConfig", "torchnav.sim.params.LidarParams", {"forward": "offset"}),
+]
+
+
+def _config_classes() -> list[type]:
+    """Every config dataclass of torchnav: the subclasses of ``Checked`` (the base of every config)
+    defined in torchnav: the simulator's parameters, the task configs and their sections, the recipes' configs."""
+    import torchnav.sim  # noqa: F401
+    import torchnav.tasks  # noqa: F401
+    import torchnav.train_config  # noqa: F401
+
+    out, todo = [], list(Checked.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        todo.extend(cls.__subclasses__())
+        if cls.__module__.startswith("torchnav.") and dataclasses.is_dataclass(cls) and cls not in out:
+            out.append(cls)
+    return out
+
+
+def _name(cls: type) -> str:
+    return f"{cls.__module__}.{cls.__qualname__}"
+
+
+def _has_default(f: dataclasses.Field) -> bool:
+    return f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+
+
+def test_no_two_config_classes_declare_the_same_default():
+    """Each parameter's default is declared in exactly one class.
+
+    Two fields are the same parameter when they have the same name, or names the table
+    ``BUILT_INTO`` pairs, in two classes that map onto each other:
+
+    * a task section and the simulator class ``sim_params()`` builds from it (``BUILT_INTO``): the
+      simulator class must have no default for any field the task section declares;
+    * a class and its bases: a subclass must not declare a base's field again, except to narrow a
+      section to a subclass of its class (``task: NavConfig`` in ``NavRecipe``), which declares no
+      parameter.
+
+    Fields of the same name in classes that do not map onto each other are different parameters:
+    the alternatives for one section (``TD3Train.gamma`` and ``PPOTrain.gamma``: a recipe has one
+    train class; ``NavConfig.max_steps`` and ``LineConfig.max_steps``: a recipe has one task) and
+    unrelated sections (``eval.interval_frames`` and ``checkpoint.interval_frames``).
+    """
+    classes = {_name(c): c for c in _config_classes()}
+    assert len(classes) > 40 and "torchnav.train_config.TD3Train" in classes and "torchnav.sim.params.SimParams" in classes
+    for task_name, sim_name, renamed in BUILT_INTO:
+        task, sim = classes[task_name], classes[sim_name]
+        sim_fields = {f.name: f for f in dataclasses.fields(sim)}
+        assert set(renamed) <= {f.name for f in dataclasses.fields(task)} and set(renamed.values()) <= set(sim_fields), renamed
+        for f in dataclasses.fields(task):
+            s = sim_fields.get(renamed.get(f.name, f.name))
+            assert s is None or not _has_default(s), f"{task_name}.{f.name} and {sim_name}.{s.name} both declare a default"
+    for cls in classes.values():
+        hints = typing.get_type_hints(cls)
+        for base in cls.__mro__[1:]:
+            if not dataclasses.is_dataclass(base):
+                continue
+            base_hints = typing.get_type_hints(base)
+            for name in set(cls.__dict__.get("__annotations__", {})) & {f.name for f in dataclasses.fields(base)}:
+                allowed = [t for t in typing.get_args(base_hints[name]) or (base_hints[name],) if isinstance(t, type)]
+                assert dataclasses.is_dataclass(hints[name]) and any(issubclass(hints[name], t) for t in allowed), \
+                    f"{_name(cls)}.{name} declares the field of {_name(base)} again"
+
+
+def test_every_simulator_parameter_class_takes_its_defaults_from_a_task():
+    """A simulator parameter class is either built from a task section (``BUILT_INTO``: it has no
+    default of its own for what the section declares) or is itself a task's section (``ImuParams``
+    under ``ImuConfig``, ``FloorSensorParams`` as ``LineConfig.sensors``), so its defaults are the task's."""
+    sections = set()
+
+    def walk(cls):
+        for f in dataclasses.fields(cls):
+            tp = typing.get_type_hints(cls)[f.name]
+            if dataclasses.is_dataclass(tp):
+                sections.update(tp.__mro__)
+                walk(tp)
+
+    walk(NavConfig)
+    walk(LineConfig)
+    built = {sim for _, sim, _ in BUILT_INTO}
+    sim_classes = [c for c in _config_classes() if c.__module__.startswith("torchnav.sim.")]
+    assert len(sim_classes) == 5
+    for cls in sim_classes:
+        assert _name(cls) in built or cls in sections, f"{_name(cls)}: neither built from a task section nor one"
 
 
 # --------------------------------------------------------------------------- to_dict, merge, YAML

@@ -11,11 +11,11 @@ import pytest
 import torch
 from PIL import Image
 
+from params import lidar_params
 from reference import naive_point_clearance, naive_scan
 from torchnav.maps import MapError, load_map, parse_map
 from torchnav.maps.occupancy import mask_boxes, mask_rectangles
 from torchnav.sim import lidar_scan, points_clearance
-from torchnav.sim.params import LidarParams
 from torchnav.tasks import sampling
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -221,7 +221,7 @@ def test_forest_world_shape_and_lidar_against_naive(forest):
     assert world.segments.shape == (3, 4, 4) and world.boxes.shape == (3, 2, 5)
     world.boxes[2, 0] = torch.tensor([0.0, 0.0, 0.4, 0.2, 0.5], dtype=torch.float64)  # one random box on, in env 2
     world.box_mask[2, 0] = True
-    lidar = LidarParams(n_rays=12, fov=2 * math.pi, max_range=8.0)
+    lidar = lidar_params(n_rays=12, fov=2 * math.pi, max_range=8.0)
     pose = torch.tensor([[0.1, 0.2, 0.3], [-7.3, 4.4, -2.0], [0.0, -0.75, 1.6]], dtype=torch.float64)
     got = lidar_scan(pose, world, lidar)
     assert torch.allclose(got, torch.tensor(naive_scan(pose, world, lidar), dtype=torch.float64), atol=1e-9)

@@ -106,7 +106,7 @@ def test_disc_coverage_gradcheck():
 
 
 def test_params_validation():
-    with pytest.raises(ValueError, match="sensors.mode"):
+    with pytest.raises(ValueError, match="mode='digital': must be analog or binary or smooth"):
         FloorSensorParams(mode="digital")
     with pytest.raises(ValueError, match="threshold"):
         FloorSensorParams(threshold=1.0)

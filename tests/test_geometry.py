@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
+from params import sim_params
 from reference import naive_clearance, naive_point_clearance, random_world
 from torchnav.sim import (
-    SimParams,
     box_corners,
     disc_clearance,
     init_state,
@@ -69,7 +69,7 @@ def test_box_corners_ccw():
     ids=["circle", "box", "segment"],
 )
 def test_collision_flag_when_disc_touches(obstacle):
-    params = SimParams(robot_radius=0.25)
+    params = sim_params(robot_radius=0.25)
     # Exactly touching (all numbers are exact binary fractions), slightly apart, overlapping.
     pose = torch.tensor([[0.0, 0.0, 0.0], [-0.001, 0.0, 0.0], [0.1, 0.0, 1.0]], dtype=F64)
     state = init_state(pose, make_world(3, dtype=F64, **obstacle), params)
@@ -90,7 +90,7 @@ def test_masked_slots_are_ignored_and_empty_envs_read_inf():
     pose = torch.zeros(3, 3, dtype=F64)
     c = disc_clearance(pose, world, 0.1)
     assert c.tolist() == pytest.approx([0.2, 2.4, math.inf])
-    state = init_state(pose, world, SimParams(robot_radius=0.1))
+    state = init_state(pose, world, sim_params(robot_radius=0.1))
     assert state.collided.tolist() == [False, False, False]
     assert disc_clearance(pose, make_world(3, dtype=F64), 0.1).eq(math.inf).all()
 

@@ -9,10 +9,9 @@ import pytest
 import torch
 from torch.autograd import gradcheck
 
+from params import lidar_params, sim_params
 from reference import random_world
 from torchnav.sim import (
-    LidarParams,
-    SimParams,
     World,
     disc_clearance,
     init_state,
@@ -62,7 +61,7 @@ LIDAR_CASES = {
     "circles": ([[3.0, 0.2, 1.0], [7.0, 0.0, 0.5]], [[0.0, 0.0, 0.05], [-0.2, 0.3, -0.1], [3.1, 0.1, 0.5]]),
     "boxes": ([[3.0, 0.0, 0.5, 1.5, 0.3], [7.0, 0.0, 1.0, 4.0, 0.0]], [[0.0, 0.1, 0.0], [0.3, -0.3, 0.1], [3.1, 0.1, 0.4]]),
 }
-FAN = LidarParams(n_rays=5, fov=math.radians(16), max_range=20.0, offset=(0.05, 0.02, 0.03))
+FAN = lidar_params(n_rays=5, fov=math.radians(16), max_range=20.0, offset=(0.05, 0.02, 0.03))
 
 
 @pytest.mark.parametrize("unroll", [True, False], ids=["unrolled", "batched"])
@@ -85,7 +84,7 @@ def test_gradcheck_lidar_per_kind(kind, unroll):
 def test_lidar_gradient_is_zero_for_misses_and_clamps():
     obs = leaf([[3.0, 0.0, 0.5]])
     pose = leaf([[0.0, 0.0, math.pi], [2.4, 0.0, 0.0]])  # looking away; and closer than min_range
-    lidar = LidarParams(n_rays=3, fov=0.1, min_range=0.2, max_range=5.0)
+    lidar = lidar_params(n_rays=3, fov=0.1, min_range=0.2, max_range=5.0)
     ranges = lidar_scan(pose, one_kind_world("circles", obs, 2), lidar)
     assert ranges[0].eq(5.0).all() and ranges[1].eq(0.2).all()
     gp, go = torch.autograd.grad(ranges.sum(), (pose, obs))
@@ -109,7 +108,7 @@ def test_gradcheck_clearance_per_kind(kind):
 # --------------------------------------------------------------------------- through step
 
 
-PARAMS = SimParams(lin_acc_max=3.0, ang_acc_max=6.0, lidar=LidarParams(n_rays=16, fov=2 * math.pi, max_range=12.0))
+PARAMS = sim_params(lin_acc_max=3.0, ang_acc_max=6.0, lidar=lidar_params(n_rays=16, fov=2 * math.pi, max_range=12.0))
 ROLLOUT_CASES = {
     "segments": [[5.0, -4.0, 5.5, 4.0]],
     "circles": [[5.0, 1.0, 1.5]],
@@ -150,7 +149,7 @@ def test_gradcheck_short_rollout_through_step():
     obs = leaf([[3.0, 0.3, 1.0]])
     pose0 = leaf([[0.0, 0.0, 0.05]])
     actions = leaf([[[0.3, 0.1]], [[0.25, -0.2]], [[0.4, 0.0]]])
-    params = SimParams(lin_acc_max=5.0, lidar=FAN)
+    params = sim_params(lin_acc_max=5.0, lidar=FAN)
 
     def f(p, a, o):
         world = one_kind_world("circles", o, 1)

@@ -124,11 +124,11 @@ def test_geodesic_progress_leaves_the_episodes_unchanged():
 
 
 def test_progress_distance_config_errors_and_evaluation():
-    with pytest.raises(ConfigError, match="progress_distance must be one of"):
+    with pytest.raises(ConfigError, match="reward.progress_distance='manhattan': must be euclidean or geodesic"):
         NavConfig.from_dict({"reward": {"progress_distance": "manhattan"}})
     with pytest.raises(ConfigError, match="geodesic needs worlds.families"):
         NavConfig.from_dict({"reward": {"progress_distance": "geodesic"}})
-    with pytest.raises(ConfigError, match="geodesic_margin must be >= 0"):
+    with pytest.raises(ConfigError, match="reward.geodesic_margin=-0.1: must be a finite number >= 0"):
         NavConfig.from_dict({"reward": {"geodesic_margin": -0.1}})
     cfg = geodesic_cfg()
     assert eval_config(cfg).reward.progress_distance == "euclidean"

@@ -7,9 +7,9 @@ import math
 import pytest
 import torch
 
+from params import lidar_params, sim_params
 from reference import arc_pose, wrap
 from torchnav.sim import (
-    SimParams,
     apply_limits,
     init_state,
     integrate_euler,
@@ -146,14 +146,14 @@ def test_wheel_unicycle_conversions():
 
 
 def test_speed_limits_clamp():
-    p = SimParams(v_min=-0.2, v_max=0.5, omega_max=1.0)
+    p = sim_params(v_min=-0.2, v_max=0.5, omega_max=1.0)
     cmd = torch.tensor([[2.0, 3.0], [-1.0, -3.0], [0.3, 0.5], [0.5, -1.0]])
     out = apply_limits(cmd, torch.zeros(4, 2), p)
     torch.testing.assert_close(out, torch.tensor([[0.5, 1.0], [-0.2, -1.0], [0.3, 0.5], [0.5, -1.0]]), atol=0, rtol=0)
 
 
 def test_acceleration_limits_ramp_through_step():
-    p = SimParams(dt=0.1, v_max=0.5, omega_max=1.0, lin_acc_max=1.0, ang_acc_max=4.0)
+    p = sim_params(dt=0.1, v_max=0.5, omega_max=1.0, lin_acc_max=1.0, ang_acc_max=4.0)
     world = make_world(1, dtype=F64)
     state = init_state(torch.zeros(1, 3, dtype=F64), world, p)
     vs, ws = [], []
@@ -170,7 +170,7 @@ def test_acceleration_limits_ramp_through_step():
 
 
 def test_non_finite_commands_mean_stop():
-    p = SimParams()
+    p = sim_params()
     cmd = torch.tensor([[math.nan, 0.3], [math.inf, -math.inf], [0.2, math.nan]])
     out = apply_limits(cmd, torch.zeros(3, 2), p)
     assert out.tolist() == [[0.0, pytest.approx(0.3)], [0.0, 0.0], [pytest.approx(0.2), 0.0]]
@@ -189,16 +189,16 @@ def _drive(params, gen, n=25):
 
 
 def test_odometry_without_noise_equals_pose():
-    state = _drive(SimParams(), torch.Generator().manual_seed(0))
+    state = _drive(sim_params(), torch.Generator().manual_seed(0))
     assert torch.equal(state.odom, state.pose)
     # Noise configured but no generator: still noise-free.
-    state = _drive(SimParams(odom_v_noise=0.1, odom_omega_noise=0.1), None)
+    state = _drive(sim_params(odom_v_noise=0.1, odom_omega_noise=0.1), None)
     assert torch.equal(state.odom, state.pose)
 
 
 def test_odometry_noise_drifts_reproducibly():
-    noisy = SimParams(odom_v_noise=0.05, odom_omega_noise=0.05)
-    clean = _drive(SimParams(), None)
+    noisy = sim_params(odom_v_noise=0.05, odom_omega_noise=0.05)
+    clean = _drive(sim_params(), None)
     a = _drive(noisy, torch.Generator().manual_seed(3))
     b = _drive(noisy, torch.Generator().manual_seed(3))
     c = _drive(noisy, torch.Generator().manual_seed(4))
@@ -222,9 +222,8 @@ def test_wrap_angle_never_returns_plus_pi(dtype):
 
 
 def _guard_scan(scan: str, n: int = 20):
-    from torchnav.sim import LidarParams
 
-    return LidarParams(n_rays=n, fov=2 * math.pi, scan=scan, max_range=10.0)
+    return lidar_params(n_rays=n, fov=2 * math.pi, scan=scan, max_range=10.0)
 
 
 def test_forward_speed_guard_against_points_in_the_path():

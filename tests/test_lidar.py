@@ -7,11 +7,12 @@ import math
 import pytest
 import torch
 
+from params import lidar_params
 from reference import naive_scan, random_world
-from torchnav.sim import LidarParams, lidar_scan, make_world, ray_origins_and_angles, sectorize
+from torchnav.sim import lidar_scan, make_world, ray_origins_and_angles, sectorize
 
 F64 = torch.float64
-ONE_RAY = LidarParams(n_rays=1, fov=0.1, max_range=10.0)  # a single ray straight ahead of the sensor
+ONE_RAY = lidar_params(n_rays=1, fov=0.1, max_range=10.0)  # a single ray straight ahead of the sensor
 
 
 def scan(pose, lidar=ONE_RAY, dtype=F64, unroll=None, generator=None, **obstacles):
@@ -65,7 +66,7 @@ def test_ray_to_rotated_box(unroll):
 
 @both_reductions
 def test_misses_read_max_range_and_min_range_clamps(unroll):
-    lidar = LidarParams(n_rays=1, fov=0.1, min_range=0.1, max_range=5.0)
+    lidar = lidar_params(n_rays=1, fov=0.1, min_range=0.1, max_range=5.0)
     # Everything behind, beside, or beyond max_range misses.
     far = scan(
         [0, 0, 0],
@@ -77,7 +78,7 @@ def test_misses_read_max_range_and_min_range_clamps(unroll):
     )
     assert float(far) == 5.0
     # An empty world (zero slots of every kind) misses everywhere.
-    assert scan([[0, 0, 0], [1, 2, 3]], LidarParams(n_rays=8), unroll=unroll).eq(10.0).all()
+    assert scan([[0, 0, 0], [1, 2, 3]], lidar_params(n_rays=8), unroll=unroll).eq(10.0).all()
     assert float(scan([0, 0, 0], lidar, segments=[[0.05, -1.0, 0.05, 1.0]], unroll=unroll)) == pytest.approx(0.1)
     assert float(scan([0, 0, 0], lidar, segments=[[4.0, -1.0, 4.0, 1.0]], unroll=unroll)) == pytest.approx(4.0)
 
@@ -90,7 +91,7 @@ def test_tangent_ray_to_circle_is_a_miss():
 
 def test_offset_mount_shifts_readings():
     # Sensor 0.1 m ahead and 0.05 m left of the robot centre, turned 90 deg to the left.
-    lidar = LidarParams(n_rays=1, fov=0.1, offset=(0.1, 0.05, math.pi / 2))
+    lidar = lidar_params(n_rays=1, fov=0.1, offset=(0.1, 0.05, math.pi / 2))
     walls = [[-5.0, 2.0, 5.0, 2.0], [-3.0, -5.0, -3.0, 5.0]]  # y = 2 and x = -3
     # Robot heading +x: the sensor sits at (0.1, 0.05) and looks along +y.
     assert float(scan([0, 0, 0], lidar, segments=walls)) == pytest.approx(1.95, abs=1e-12)
@@ -123,7 +124,7 @@ def room_range(phi: float) -> float:
 
 
 def test_180_degree_layout():
-    lidar = LidarParams(n_rays=180, fov=math.pi)
+    lidar = lidar_params(n_rays=180, fov=math.pi)
     angles = lidar.angles()
     assert angles[0] == pytest.approx(-math.pi / 2) and angles[-1] == pytest.approx(math.pi / 2)
     assert all(b > a for a, b in zip(angles, angles[1:]))  # counter-clockwise order
@@ -137,7 +138,7 @@ def test_180_degree_layout():
 
 
 def test_360_degree_layout():
-    lidar = LidarParams(n_rays=360, fov=2 * math.pi)
+    lidar = lidar_params(n_rays=360, fov=2 * math.pi)
     angles = lidar.angles()
     assert angles[0] == pytest.approx(-math.pi) and angles[180] == pytest.approx(0.0, abs=1e-12)
     assert all(b > a for a, b in zip(angles, angles[1:])) and angles[-1] < math.pi
@@ -164,8 +165,8 @@ def test_sectorize_takes_min_over_consecutive_groups():
 
 
 def test_noise_only_with_a_generator_and_reproducible():
-    lidar = LidarParams(n_rays=200, fov=math.pi / 2, noise_std=0.05)
-    clean_lidar = LidarParams(n_rays=200, fov=math.pi / 2)
+    lidar = lidar_params(n_rays=200, fov=math.pi / 2, noise_std=0.05)
+    clean_lidar = lidar_params(n_rays=200, fov=math.pi / 2)
     wall = [[3.0, -10.0, 3.0, 10.0]]
     clean = scan([0, 0, 0], clean_lidar, segments=wall)
     assert torch.equal(scan([0, 0, 0], lidar, segments=wall), clean)  # no generator, no noise
@@ -191,7 +192,7 @@ def test_scan_matches_naive_loop(dtype, tol, unroll, seed):
     world = random_world(batch, (3, 4, 4), seed=seed, dtype=dtype)
     g = torch.Generator().manual_seed(100 + seed)
     pose = torch.cat((torch.rand(batch, 2, generator=g) * 6 - 3, torch.rand(batch, 1, generator=g) * 6 - 3), -1).to(dtype)
-    lidar = LidarParams(n_rays=72, fov=2 * math.pi, min_range=0.05, max_range=8.0, offset=(0.1, -0.05, 0.2))
+    lidar = lidar_params(n_rays=72, fov=2 * math.pi, min_range=0.05, max_range=8.0, offset=(0.1, -0.05, 0.2))
     got = lidar_scan(pose, world, lidar, unroll=unroll)
     want = torch.tensor(naive_scan(pose, world, lidar), dtype=F64)
     assert got.shape == (batch, 72) and got.dtype == dtype
@@ -204,7 +205,7 @@ def test_scan_with_only_one_kind_and_half_fov():
     for slots in ((4, 0, 0), (0, 4, 0), (0, 0, 4)):
         world = random_world(4, slots, seed=5, dtype=F64)
         pose = torch.tensor([[0.0, 0.0, 0.0], [1.0, -1.0, 2.0], [-2.0, 0.5, -1.0], [0.5, 2.0, 3.0]], dtype=F64)
-        lidar = LidarParams(n_rays=45, fov=math.radians(270))
+        lidar = lidar_params(n_rays=45, fov=math.radians(270))
         for unroll in (True, False):
             got = lidar_scan(pose, world, lidar, unroll=unroll)
             torch.testing.assert_close(got, torch.tensor(naive_scan(pose, world, lidar), dtype=F64), atol=1e-9, rtol=0)
@@ -237,7 +238,7 @@ def test_zero_size_box_is_invisible_but_a_zero_width_box_is_a_wall():
 def test_far_circle_is_precise_in_float32():
     circle = [[5000.0, 0.5, 1.0]]
     want = 5000.0 - math.sqrt(1.0 - 0.25)  # the half chord, 0.87 m, is lost in b^2 - c at 5 km
-    far = LidarParams(n_rays=1, fov=0.1, max_range=6000.0)
+    far = lidar_params(n_rays=1, fov=0.1, max_range=6000.0)
     assert float(scan([0, 0, 0], far, dtype=torch.float32, circles=circle)) == pytest.approx(want, abs=2e-3)
     assert float(scan([0, 0, 0], far, dtype=F64, circles=circle)) == pytest.approx(want, abs=1e-9)
 
@@ -253,6 +254,6 @@ def test_default_reduction_unrolls_few_slots_in_large_eager_batches_only():
     for b in (8, EAGER_UNROLL_MIN_RAYS // 20 + 1):
         world = random_world(b, (4, 3, 2), seed=b, dtype=torch.float32)
         pose = torch.cat((torch.rand(b, 2, generator=g) * 4 - 2, torch.rand(b, 1, generator=g) * 6 - 3), 1)
-        default = lidar_scan(pose, world, LidarParams(n_rays=20))
+        default = lidar_scan(pose, world, lidar_params(n_rays=20))
         for unroll in (True, False):
-            torch.testing.assert_close(lidar_scan(pose, world, LidarParams(n_rays=20), unroll=unroll), default, rtol=0, atol=1e-5)
+            torch.testing.assert_close(lidar_scan(pose, world, lidar_params(n_rays=20), unroll=unroll), default, rtol=0, atol=1e-5)

@@ -18,9 +18,10 @@ import yaml
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from params import lidar_params
+
 from torchnav.maps import MapError, MapSpec, available_maps, load_map, parse_map
 from torchnav.maps.free_space import obstacle_distance, reachable_fraction
-from torchnav.sim.params import LidarParams
 from torchnav.sim.state import check_world
 
 SHIPPED = ["arena", "empty", "maze", "street", "warehouse"]
@@ -283,7 +284,7 @@ def test_render_functions_draw_on_agg():
     pose = torch.tensor([[0.0, -3.0, 0.5], [1.0, 2.0, -1.0]], requires_grad=True)
     draw_robots(ax, pose, 0.2, env=[0, 1])
     draw_robots(ax, pose * 1.0, 0.2, env=None)
-    for lidar in (LidarParams(n_rays=16, fov=2 * math.pi), LidarParams(n_rays=5, fov=math.pi, offset=(0.1, 0.0, 0.0))):
+    for lidar in (lidar_params(n_rays=16, fov=2 * math.pi), lidar_params(n_rays=5, fov=math.pi, offset=(0.1, 0.0, 0.0))):
         ranges = torch.full((2, lidar.n_rays), 2.0, requires_grad=True)
         draw_rays(ax, pose, ranges, lidar, env=1)
     draw_goal(ax, torch.tensor([[3.0, 3.0], [-3.0, 1.0]]), env=0, radius=0.3)
@@ -299,7 +300,7 @@ def test_render_functions_draw_on_agg():
 def test_draw_rays_geometry():
     from torchnav.render import draw_rays
 
-    lidar = LidarParams(n_rays=3, fov=math.pi, max_range=5.0, offset=(0.5, 0.0, 0.0))
+    lidar = lidar_params(n_rays=3, fov=math.pi, max_range=5.0, offset=(0.5, 0.0, 0.0))
     pose = torch.tensor([[1.0, 2.0, math.pi / 2]], dtype=torch.float64)  # facing +y, so the sensor sits at (1, 2.5)
     ranges = torch.tensor([[1.0, 2.0, 5.0]])
     fig, ax = _fig()

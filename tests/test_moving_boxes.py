@@ -5,7 +5,9 @@ import math
 import pytest
 import torch
 
-from torchnav.sim import CameraParams, LidarParams, SimParams, init_state, make_movers, make_world, mover_world, step
+from params import camera_params, lidar_params, sim_params
+
+from torchnav.sim import init_state, make_movers, make_world, mover_world, step
 
 
 def _drive(params, movers, n, b=1):
@@ -22,9 +24,9 @@ def test_moving_box_lidar_and_camera_return_match_geometry():
     """A 1 x 0.6 m box sliding across the ray along +x: the ray reads its near face while the
     box covers y = 0, the camera's middle columns the same depth, then both miss."""
     hx, hy, vy, dt = 0.5, 0.3, 0.2, 0.1
-    lidar = LidarParams(n_rays=360, fov=2 * math.pi, max_range=20.0)
-    cam = CameraParams(n_cols=1, fov=0.02, max_range=20.0)  # one column, along the axis
-    params = SimParams(dt=dt, lidar=lidar, camera=cam)
+    lidar = lidar_params(n_rays=360, fov=2 * math.pi, max_range=20.0)
+    cam = camera_params(n_cols=1, fov=0.02, max_range=20.0)  # one column, along the axis
+    params = sim_params(dt=dt, lidar=lidar, camera=cam)
     movers = make_movers(1, boxes=[[4.0, -0.5, 0.0, vy, hx, hy, 0.0]])
     assert movers.rows.shape == (1, 1, 9) and movers.boxes.shape == (1, 1, 3)
     ahead = lidar.n_rays // 2
@@ -44,7 +46,7 @@ def test_moving_box_lidar_and_camera_return_match_geometry():
 def test_rotated_moving_box_lidar_hits_its_corner():
     """A square box turned 45 degrees shows the ray along +x its corner at ``x - h sqrt(2)``."""
     h = 0.4
-    params = SimParams(lidar=LidarParams(n_rays=360, fov=2 * math.pi, max_range=20.0))
+    params = sim_params(lidar=lidar_params(n_rays=360, fov=2 * math.pi, max_range=20.0))
     movers = make_movers(1, boxes=[[3.0, 0.0, 0.5, 0.0, h, h, math.pi / 4]])
     for k, s in enumerate(_drive(params, movers, 5)):
         assert s.ranges[0, 180].item() == pytest.approx(3.0 + 0.05 * k - h * math.sqrt(2), abs=1e-4)
@@ -53,7 +55,7 @@ def test_rotated_moving_box_lidar_hits_its_corner():
 def test_moving_box_collides_with_robot():
     """A box of half length 0.3 m driving at the robot at 1 m/s touches the 0.2 m robot when its
     centre reaches 0.5 m: after 15 steps of 0.1 s from 2 m."""
-    params = SimParams(dt=0.1)
+    params = sim_params(dt=0.1)
     movers = make_movers(1, boxes=[[2.0, 0.0, -1.0, 0.0, 0.3, 0.6, 0.0]])
     states = _drive(params, movers, 20)
     hit = [k for k, s in enumerate(states) if s.collided[0]]
@@ -65,7 +67,7 @@ def test_moving_boxes_bounce_inside_their_region_and_keep_shape():
     movers = make_movers(2, [[0.0, 0.0, 0.7, -0.4, 0.2]], region=(-2.0, -1.5, 2.0, 1.5),
                          boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
     start = movers.boxes.clone()
-    states = _drive(SimParams(), movers, 100, b=2)
+    states = _drive(sim_params(), movers, 100, b=2)
     for s in states:
         x, y, r = s.movers[..., 0], s.movers[..., 1], s.movers[..., 4]
         assert (x - r >= -2.0 - 1e-5).all() and (x + r <= 2.0 + 1e-5).all()
@@ -83,7 +85,7 @@ def test_mover_world_is_component_major_with_the_movers_values():
     from torchnav.sim.state import is_planar
 
     movers = make_movers(3, [[0.0, 0.0, 0.7, -0.4, 0.2]], boxes=[[0.5, 0.5, -0.9, 0.6, 0.3, 0.2, 0.4]])
-    s = init_state(torch.zeros(3, 3), make_world(3), SimParams(), movers=movers)
+    s = init_state(torch.zeros(3, 3), make_world(3), sim_params(), movers=movers)
     world = mover_world(s.movers, s.mover_mask, s.mover_boxes)
     assert is_planar(world.circles) and is_planar(world.boxes)
     assert torch.allclose(world.circles[2], torch.tensor([[0.0, 0.0, 0.2]]))
@@ -106,11 +108,11 @@ def test_box_shapes_in_the_wrong_place_are_refused_naming_the_layout():
     rows, mask, plan, boxes = make_movers(2, [[0.0, 0.0, 0.5, 0.0, 0.2]], boxes=[[1.0, 1.0, 0.0, 0.5, 0.3, 0.2, 0.1]])
     old = torch.cat((rows, torch.cat((torch.zeros(2, 1, 3), boxes), 1)), -1)  # (2, 2, 12)
     with pytest.raises(ValueError, match=r"Movers\.boxes"):
-        init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(old, mask, plan))
+        init_state(torch.zeros(2, 3), make_world(2), sim_params(), movers=Movers(old, mask, plan))
     with pytest.raises(ValueError, match="separate tensor"):
         step_movers(old, plan, mask, 0.1, torch.zeros(2, 2), 0.2, torch.zeros(2, 0))
     with pytest.raises(ValueError, match=r"the last K movers are boxes"):
-        init_state(torch.zeros(2, 3), make_world(2), SimParams(), movers=Movers(rows, mask, plan, torch.zeros(2, 3, 3)))
+        init_state(torch.zeros(2, 3), make_world(2), sim_params(), movers=Movers(rows, mask, plan, torch.zeros(2, 3, 3)))
     with pytest.raises(ValueError, match=r"mover boxes must have shape \(2, K, 3\)"):
         mover_world(rows, mask, torch.zeros(2, 1, 5))
 

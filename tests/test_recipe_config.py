@@ -1,5 +1,6 @@
-"""The recipes' config classes (recipes/_config.py): every shipped YAML is exactly its class, and a bad
-key or value is named, with what is allowed, before any run directory exists."""
+"""The recipes' config classes (torchnav/train_config.py): every shipped YAML lists only what it changes
+from its class's defaults, and a bad key or value is named, with what is allowed, before any run
+directory exists."""
 
 from __future__ import annotations
 
@@ -15,11 +16,11 @@ import yaml
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "recipes"))
 
-import _config as K  # noqa: E402
-import _config_load as L  # noqa: E402
-
+import torchnav.train_config as K  # noqa: E402
 from torchnav.config import ConfigError, to_dict  # noqa: E402
 from torchnav.tasks import LineConfig, NavConfig  # noqa: E402
+
+L = K  # the loading functions live in the same module
 
 # every shipped config file -> the recipe that reads it
 SHIPPED = {p.stem: p.stem for p in (ROOT / "recipes" / "configs").glob("*.yaml") if p.stem in K.RECIPES}
@@ -32,25 +33,48 @@ def test_every_config_file_has_its_recipe():
 
 
 @pytest.mark.parametrize("config,recipe", sorted(SHIPPED.items()))
-def test_shipped_yaml_is_its_class_and_round_trips(config, recipe, tmp_path):
+def test_shipped_yaml_lists_what_differs_from_its_class_and_round_trips(config, recipe, tmp_path):
     path = ROOT / "recipes" / "configs" / f"{config}.yaml"
     cfg = L.load_config(recipe, ["--config", str(path)])
     assert type(cfg) is K.RECIPES[recipe]
     assert isinstance(cfg.task, LineConfig if recipe.endswith("_line") else NavConfig)
-    # one to one: each key of the file is a field, and each value is the field's value
-    data = yaml.safe_load(path.read_text())
-    assert set(data) == {f.name for f in dataclasses.fields(cfg)}
+    # each key of the file is a field, each value is the field's value, and differs from the default
+    data = yaml.safe_load(path.read_text()) or {}
+    default = K.RECIPES[recipe]()
 
-    def same(node, obj, key):
+    def same(node, obj, base, key):
         if isinstance(node, dict) and dataclasses.is_dataclass(obj):
             for k, v in node.items():
-                same(v, getattr(obj, k), f"{key}.{k}")
+                assert k in {f.name for f in dataclasses.fields(obj)}, key
+                same(v, getattr(obj, k), getattr(base, k), f"{key}.{k}")
         else:
             assert to_dict(obj) == node or to_dict(obj) == to_dict(node), key
+            assert to_dict(obj) != to_dict(base), f"{key}: the file repeats the default {to_dict(base)!r}"
 
-    same(data, cfg, config)
+    same(data, cfg, default, config)
+    # the saved config has every key, and reads back to the same config
     L.save_config(cfg, tmp_path)
+    saved = yaml.safe_load((tmp_path / "config.yaml").read_text())
+    assert saved == to_dict(cfg) and set(saved) == {f.name for f in dataclasses.fields(cfg)}
     assert L.load_config(recipe, ["--config", str(tmp_path / "config.yaml")]) == cfg
+
+
+def test_config_dir_and_default_folder(tmp_path):
+    """load_config reads <config_dir>/<name>.yaml, by default the repository's recipes/configs."""
+    assert K.CONFIG_DIR == ROOT / "recipes" / "configs"
+    (tmp_path / "td3_lidar.yaml").write_text("seed: 7\n")
+    assert L.load_config("td3_lidar", [], config_dir=tmp_path).seed == 7
+    assert L.load_config("td3_lidar", []).seed == 0
+    with pytest.raises(ConfigError, match="config file not found"):
+        L.load_config("td3_lidar", [], config_dir=tmp_path / "nowhere")
+
+
+def test_every_train_default_is_its_main_recipe():
+    """Each algorithm's train defaults are its main recipe's resolved values (whose file sets no train key)."""
+    for recipe, cls in (("td3_lidar", K.TD3Train), ("ppo_lidar", K.PPOTrain), ("sac_lidar", K.SACTrain),
+                        ("dqn_line", K.DQNTrain), ("apg_lidar", K.APGTrain)):
+        assert L.load_config(recipe, []).train == cls(), recipe
+        assert "train" not in (yaml.safe_load((ROOT / "recipes" / "configs" / f"{recipe}.yaml").read_text()) or {}), recipe
 
 
 def test_every_field_declares_what_it_allows():
@@ -68,8 +92,8 @@ def test_every_field_declares_what_it_allows():
 
     for cls in K.RECIPES.values():
         walk(cls, "")
-    # threads: 'auto' or an int >= 1 and logger.backend: a known, installed backend, both in __post_init__
-    assert free == {"threads", "logger.backend", "logger.root", "logger.run_dir", "checkpoint.resume"}
+    # any path (root, run_dir) and resume's true, false or a path
+    assert free == {"logger.root", "logger.run_dir", "checkpoint.resume"}
 
 
 @pytest.mark.parametrize("recipe", sorted(K.RECIPES))
@@ -79,7 +103,7 @@ def test_every_field_declares_what_it_allows():
     ("train.total_frames=0", "train.total_frames=0: must be an integer >= 1"),
     ("train.gamma=inf", "train.gamma=inf: must be finite"),
     ("eval.target_success=1.5", "eval.target_success=1.5: must be a number in [0, 1]"),
-    ("task.max_steps=x", "task.max_steps: expected an integer, got str 'x'"),
+    ("task.max_steps=x", "task.max_steps='x': must be an integer >= 1"),
 ])
 def test_bad_key_type_or_range_is_named_before_the_run_directory(tmp_path, recipe, override, message):
     run = tmp_path / "run"
@@ -89,33 +113,30 @@ def test_bad_key_type_or_range_is_named_before_the_run_directory(tmp_path, recip
     assert not run.exists()
 
 
-@pytest.mark.parametrize("old,new", [("env.map=warehouse", "task.map"), ("curriculum.growth=0.01", "task.curriculum.growth"),
-                                     ("reward.weights.step=-0.01", "task.reward.weights.step"), ("env.max_steps=100", "task.max_steps")])
-def test_a_key_of_the_old_layout_names_its_new_key(old, new):
-    with pytest.raises(ConfigError, match=f"{old.split('=')[0]} is now {new}"):
-        L.load_config("td3_lidar", [old])
-
-
-def test_an_old_layout_file_is_refused_and_an_old_saved_run_migrates(tmp_path):
-    new = yaml.safe_load((ROOT / "recipes" / "configs" / "ppo_line.yaml").read_text())
-    old = {**new, "env": {"num_envs": 256, "track": "oval", "max_steps": 900}, "reward": {"weights": {"lap": 1.0}}, "task": {}}
-    path = tmp_path / "old.yaml"
-    path.write_text(yaml.safe_dump(old))
-    with pytest.raises(ConfigError, match="env.max_steps is now task.max_steps; env.track is now task.track; reward is now task.reward"):
-        L.load_config("ppo_line", ["--config", str(path)])
-    cfg, changes = L.resumed_config(old, ["train.total_frames=2000000"], "ppo_line", tmp_path)
-    assert (cfg.task.track, cfg.task.max_steps, cfg.task.reward.weights) == ("oval", 900, {"lap": 1.0})
-    assert changes == ["train.total_frames: 1000000 -> 2000000"] and cfg.logger.run_dir == str(tmp_path)
-
-
-def test_a_file_missing_a_key_names_it(tmp_path):
-    data = yaml.safe_load((ROOT / "recipes" / "configs" / "td3_lidar.yaml").read_text())
-    del data["train"]["policy_delay"], data["eval"]
+def test_a_file_leaving_out_a_key_takes_its_default_and_an_old_layout_key_is_unknown(tmp_path):
+    data = {"train": {"total_frames": 1000}, "env": {"num_envs": 16}}
     path = tmp_path / "partial.yaml"
     path.write_text(yaml.safe_dump(data))
+    cfg = L.load_config("td3_lidar", ["--config", str(path)])
+    assert cfg.train == K.TD3Train(total_frames=1000) and cfg.eval == K.EvalConfig() and cfg.env.num_envs == 16
+    # a key of the layout before the task section (env.map, curriculum, reward) is just an unknown key
+    with pytest.raises(ConfigError, match="unknown config key 'env.map'; valid keys of env: num_envs, compile_step"):
+        L.load_config("td3_lidar", ["env.map=warehouse"])
+    with pytest.raises(ConfigError, match="unknown config key 'curriculum.growth'; valid keys: seed, device, threads, env, task"):
+        L.load_config("td3_lidar", ["curriculum.growth=0.01"])
+    path.write_text(yaml.safe_dump({"env": {"num_envs": 16, "track": "oval"}, "reward": {"weights": {"lap": 1.0}}}))
     with pytest.raises(ConfigError) as e:
-        L.load_config("td3_lidar", ["--config", str(path)])
-    assert "train.policy_delay: missing" in str(e.value) and "eval: missing" in str(e.value)
+        L.load_config("ppo_line", ["--config", str(path)])
+    assert "env: unknown key 'track'; valid keys: num_envs" in str(e.value) and "unknown key 'reward'" in str(e.value)
+
+
+def test_a_resumed_run_keeps_its_saved_config_and_names_each_change(tmp_path):
+    saved = to_dict(L.load_config("ppo_line", ["task.track=oval", "task.max_steps=900", "task.reward.weights.lap=1.0"]))
+    cfg, changes = L.resumed_config(saved, ["train.total_frames=2000000"], "ppo_line", tmp_path)
+    assert (cfg.task.track, cfg.task.max_steps, cfg.task.reward.weights) == ("oval", 900, {"lap": 1.0})
+    assert changes == ["train.total_frames: 1000000 -> 2000000"] and cfg.logger.run_dir == str(tmp_path)
+    with pytest.raises(ConfigError, match=r"cannot change task.max_steps \(900 -> 800\)"):
+        L.resumed_config(saved, ["task.max_steps=800"], "ppo_line", tmp_path)
 
 
 def test_command_line_values_read_as_yaml():

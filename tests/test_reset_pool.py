@@ -68,7 +68,7 @@ def test_pool_reuse_is_validated():
 
     from torchnav.config import ConfigError
 
-    with pytest.raises(ConfigError, match="reset.reuse must be an int >= 1"):
+    with pytest.raises(ConfigError, match="reset.reuse=0: must be an integer >= 1"):
         NavConfig.from_dict({"reset": {"pool": 8, "reuse": 0}})
     with pytest.raises(ConfigError, match="reset.reuse > 1 needs a pool"):
         NavConfig.from_dict({"reset": {"reuse": 4}})

@@ -9,6 +9,7 @@ import pytest
 import torch
 from torch.autograd import gradcheck
 
+from params import lidar_params
 from reference import random_world
 from torchnav.sim import LidarParams, World, cast_rays, disc_clearance, lidar_scan, make_world
 from torchnav.sim.lidar import lidar_fan
@@ -46,7 +47,7 @@ def outside_poses(world: World, n: int, seed: int, half: float = 3.5) -> torch.T
 def test_equals_dense_rays_min_pooled_on_circles_and_boxes(fov_deg, n, seed):
     world = random_world(12, (0, 8, 8), seed=seed, dtype=F64)
     pose = outside_poses(world, 12, seed)
-    lidar = LidarParams(n_rays=n, fov=math.radians(fov_deg), max_range=8.0, scan="sectors")
+    lidar = lidar_params(n_rays=n, fov=math.radians(fov_deg), max_range=8.0, scan="sectors")
     got = lidar_scan(pose, world, lidar)
     dense = pooled_rays(pose, world, lidar, per_sector=10_000 // n)
     assert (got < lidar.max_range).sum() > 12 * n // 3  # most sectors see something
@@ -57,7 +58,7 @@ def test_equals_dense_rays_min_pooled_on_circles_and_boxes(fov_deg, n, seed):
 def test_walls_never_read_farther_than_dense_rays():
     world = random_world(12, (6, 0, 0), seed=3, dtype=F64)
     pose = outside_poses(world, 12, 3)
-    lidar = LidarParams(n_rays=16, fov=2 * math.pi, max_range=8.0, scan="sectors")
+    lidar = lidar_params(n_rays=16, fov=2 * math.pi, max_range=8.0, scan="sectors")
     got, dense = lidar_scan(pose, world, lidar), pooled_rays(pose, world, lidar, per_sector=600)
     assert (got <= dense + 1e-9).all()
     # Walls seen nearly end-on converge slowly under ray sampling; elsewhere they agree.
@@ -66,14 +67,14 @@ def test_walls_never_read_farther_than_dense_rays():
 
 def test_thin_post_between_rays_is_seen():
     # A 5 cm post 2 m ahead, half-way between two of 20 rays over 180 degrees (9.5 degrees apart).
-    lidar_rays = LidarParams(n_rays=20, fov=math.pi, max_range=10.0)
+    lidar_rays = lidar_params(n_rays=20, fov=math.pi, max_range=10.0)
     gap = math.pi / 19
     a = -math.pi / 2 + 9.5 * gap
     post = [[2.0 * math.cos(a), 2.0 * math.sin(a), 0.025]]
     pose = torch.zeros(1, 3, dtype=F64)
     world = make_world(1, circles=post, dtype=F64)
     assert lidar_scan(pose, world, lidar_rays).eq(10.0).all()  # every ray misses it
-    sectors = lidar_scan(pose, world, LidarParams(n_rays=20, fov=math.pi, max_range=10.0, scan="sectors"))
+    sectors = lidar_scan(pose, world, lidar_params(n_rays=20, fov=math.pi, max_range=10.0, scan="sectors"))
     # Sector k spans [-90 + 9 k, -90 + 9 (k + 1)] degrees; the post sits at 0 degrees (the edge of 9 and 10).
     assert sectors[0, 9:11].tolist() == pytest.approx([2.0 - 0.025] * 2)
     assert sectors[0, :9].eq(10.0).all() and sectors[0, 11:].eq(10.0).all()
@@ -82,19 +83,19 @@ def test_thin_post_between_rays_is_seen():
 def test_wall_end_on_is_seen_at_its_near_end():
     pose = torch.zeros(1, 3, dtype=F64)
     world = make_world(1, segments=[[1.5, 0.001, 4.0, 0.001]], dtype=F64)  # almost along the middle ray
-    got = lidar_scan(pose, world, LidarParams(n_rays=5, fov=math.pi, max_range=10.0, scan="sectors"))
+    got = lidar_scan(pose, world, lidar_params(n_rays=5, fov=math.pi, max_range=10.0, scan="sectors"))
     assert got[0, 2].item() == pytest.approx(math.hypot(1.5, 0.001)) and got[0, [0, 1, 3, 4]].eq(10.0).all()
 
 
 def test_sensor_inside_a_circle_or_box_reads_min_range_everywhere():
-    lidar = LidarParams(n_rays=12, fov=2 * math.pi, min_range=0.05, max_range=6.0, scan="sectors")
+    lidar = lidar_params(n_rays=12, fov=2 * math.pi, min_range=0.05, max_range=6.0, scan="sectors")
     pose = torch.tensor([[0.1, 0.0, 0.3], [3.0, 3.0, 0.0]], dtype=F64)
     world = make_world(2, circles=[[0.0, 0.0, 0.5]], boxes=[[3.2, 3.0, 0.5, 0.3, 0.4]], dtype=F64)
     assert lidar_scan(pose, world, lidar).eq(0.05).all()
 
 
 def test_zero_size_obstacles_are_invisible():
-    lidar = LidarParams(n_rays=8, fov=2 * math.pi, max_range=6.0, scan="sectors")
+    lidar = lidar_params(n_rays=8, fov=2 * math.pi, max_range=6.0, scan="sectors")
     world = make_world(1, segments=[[1.0, 1.0, 1.0, 1.0]], circles=[[2.0, 0.0, 0.0]], boxes=[[0.0, 2.0, 0.0, 0.0, 0.3]], dtype=F64)
     assert lidar_scan(torch.zeros(1, 3, dtype=F64), world, lidar).eq(6.0).all()
 
@@ -111,7 +112,7 @@ def test_gradcheck_sector_scan(kind):
     width = {"segments": 4, "circles": 3, "boxes": 5}
     obs = torch.tensor(SECTOR_CASES[kind], dtype=F64, requires_grad=True)
     pose = torch.tensor([[0.0, 0.1, 0.05], [0.2, -0.1, -0.3]], dtype=F64, requires_grad=True)
-    lidar = LidarParams(n_rays=7, fov=2 * math.pi, max_range=20.0, scan="sectors")
+    lidar = lidar_params(n_rays=7, fov=2 * math.pi, max_range=20.0, scan="sectors")
 
     def f(pose, obs):
         fields = {}
@@ -129,7 +130,7 @@ def test_gradcheck_sector_scan(kind):
 def test_backward_is_nan_free_in_dense_worlds():
     world = random_world(16, (30, 60, 40), seed=7, dtype=torch.float32)
     pose = (torch.rand(16, 3, generator=torch.Generator().manual_seed(1)) * 8 - 4).requires_grad_(True)
-    lidar = LidarParams(n_rays=20, fov=2 * math.pi, max_range=8.0, scan="sectors", window=0, dense_slots=8)
+    lidar = lidar_params(n_rays=20, fov=2 * math.pi, max_range=8.0, scan="sectors", window=0, dense_slots=8)
     lidar_scan(pose, world, lidar).sum().backward()
     assert torch.isfinite(pose.grad).all()
 
@@ -143,7 +144,7 @@ def test_sector_bearing_is_the_fan_and_guard_layout():
     from torchnav.sim.params import LidarParams
 
     for fov, n in ((math.pi, 20), (2 * math.pi, 20), (math.radians(270), 7)):
-        lidar = LidarParams(n_rays=n, fov=fov, scan="sectors")
+        lidar = lidar_params(n_rays=n, fov=fov, scan="sectors")
         edges = [lidar.sector_bearing(k) for k in range(n + 1)]
         assert edges[0] == (-math.pi if lidar.full_circle else -fov / 2)
         assert math.isclose(edges[-1] - edges[0], fov, rel_tol=1e-12)

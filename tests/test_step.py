@@ -7,16 +7,17 @@ import math
 import pytest
 import torch
 
+from params import lidar_params, sim_params
 from reference import random_world
-from torchnav.sim import LidarParams, SimParams, SimState, init_state, make_world, step, wheels_to_unicycle
+from torchnav.sim import SimState, init_state, make_world, step, wheels_to_unicycle
 
 F64 = torch.float64
-NOISY = SimParams(
+NOISY = sim_params(
     odom_v_noise=0.05,
     odom_omega_noise=0.05,
     lin_acc_max=2.0,
     ang_acc_max=5.0,
-    lidar=LidarParams(n_rays=16, fov=2 * math.pi, noise_std=0.02, max_range=6.0),
+    lidar=lidar_params(n_rays=16, fov=2 * math.pi, noise_std=0.02, max_range=6.0),
 )
 FIELDS = ("pose", "vel", "odom", "ranges", "clearance", "collided", "time")
 
@@ -69,7 +70,7 @@ def test_same_generator_seed_same_rollout():
 def test_batch_equals_envs_stepped_one_at_a_time(dtype, atol):
     batch = 5
     state, world, actions = setup(batch, dtype)
-    params = SimParams(lin_acc_max=2.0, lidar=LidarParams(n_rays=16, fov=2 * math.pi, max_range=6.0))
+    params = sim_params(lin_acc_max=2.0, lidar=lidar_params(n_rays=16, fov=2 * math.pi, max_range=6.0))
     state = init_state(state.pose, world, params)
     singles = [state[i : i + 1] for i in range(batch)]
     for a in actions:
@@ -131,10 +132,10 @@ def test_init_state_validates():
 
 def test_non_finite_actions_stop_and_keep_state_finite():
     world = make_world(3, boxes=[[2.0, 0.0, 0.5, 0.5, 0.2]])
-    state = init_state(torch.zeros(3, 3), world, SimParams())
-    state = step(state, torch.full((3, 2), 0.3), world, SimParams())
+    state = init_state(torch.zeros(3, 3), world, sim_params())
+    state = step(state, torch.full((3, 2), 0.3), world, sim_params())
     bad = torch.tensor([[math.nan, 0.3], [math.inf, -math.inf], [math.nan, math.nan]])
-    new = step(state, bad, world, SimParams())
+    new = step(state, bad, world, sim_params())
     for f in FIELDS[:-2]:
         assert torch.isfinite(getattr(new, f)).all(), f
     torch.testing.assert_close(new.vel, torch.tensor([[0.0, 0.3], [0.0, 0.0], [0.0, 0.0]]))
@@ -142,7 +143,7 @@ def test_non_finite_actions_stop_and_keep_state_finite():
 
 
 def test_wheel_speed_actions():
-    params = SimParams(track_width=0.4)
+    params = sim_params(track_width=0.4)
     world = make_world(2, segments=[[3.0, -3.0, 3.0, 3.0]], dtype=F64)
     state = init_state(torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.5]], dtype=F64), world, params)
     wheels = torch.tensor([[0.2, 0.4], [-0.1, 0.1]], dtype=F64)
@@ -154,7 +155,7 @@ def test_wheel_speed_actions():
 
 
 def test_driving_into_a_wall_collides():
-    params = SimParams(robot_radius=0.2, v_max=0.5, dt=0.1)
+    params = sim_params(robot_radius=0.2, v_max=0.5, dt=0.1)
     world = make_world(1, segments=[[1.0, -1.0, 1.0, 1.0]])
     state = init_state(torch.zeros(1, 3), world, params)
     flags = []
@@ -175,7 +176,7 @@ def _rollout(step_fn, state, world, actions, params):
 
 
 def _compile_case():
-    params = SimParams(lin_acc_max=2.0, lidar=LidarParams(n_rays=16, fov=2 * math.pi, max_range=6.0))
+    params = sim_params(lin_acc_max=2.0, lidar=lidar_params(n_rays=16, fov=2 * math.pi, max_range=6.0))
     state, world, actions = setup(batch=8, dtype=F64)
     state = init_state(state.pose, world, params)
     # One eager step first: init_state's odom aliases its pose, which would cost a recompile.
@@ -208,7 +209,7 @@ def test_torch_compile_matches_eager():
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_cuda_step_matches_cpu():
     state, world, actions = setup(batch=64, dtype=F64)
-    params = SimParams(lin_acc_max=2.0, lidar=LidarParams(n_rays=32, fov=2 * math.pi, max_range=6.0))
+    params = sim_params(lin_acc_max=2.0, lidar=lidar_params(n_rays=32, fov=2 * math.pi, max_range=6.0))
     state = init_state(state.pose, world, params)
     cpu = _rollout(step, state, world, actions, params)[-1]
     gpu_state = init_state(state.pose.cuda(), world.to("cuda"), params)

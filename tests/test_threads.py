@@ -21,7 +21,7 @@ def test_fixed_and_invalid_settings():
         assert g.threads == 1 and not g.auto and torch.get_num_threads() == 1
         assert g.update(force=True) is None  # a fixed count never changes
         for bad in ("x", 0, -2, 1.5, True):
-            with pytest.raises(B.ConfigError, match="threads must be 'auto' or an int >= 1"):
+            with pytest.raises(B.ConfigError, match="threads=.*: must be 'auto' or an int >= 1"):
                 B.ThreadGovernor(bad)
     finally:
         torch.set_num_threads(before)

@@ -2,9 +2,10 @@
 
 import torch
 
+from params import lidar_params, sim_params
+
 from torchnav.maps import load_map
 from torchnav.sim import World, cat_worlds, make_world, lidar_scan, pad_world, points_clearance
-from torchnav.sim.params import LidarParams
 
 
 def test_pad_world_adds_masked_slots_and_changes_nothing_seen():
@@ -13,7 +14,7 @@ def test_pad_world_adds_masked_slots_and_changes_nothing_seen():
     assert p.segments.shape == (3, 10, 4) and p.circles.shape == (3, 7, 3) and p.boxes.shape[1] == 9
     assert not p.segment_mask[:, w.segments.shape[1]:].any()
     pose = torch.tensor([[0.3, -1.0, 0.4]] * 3)
-    lidar = LidarParams(n_rays=36)
+    lidar = lidar_params(n_rays=36)
     assert torch.equal(lidar_scan(pose, p, lidar), lidar_scan(pose, w, lidar))
     pts = torch.rand(3, 50, 2) * 8 - 4
     assert torch.equal(points_clearance(pts, p), points_clearance(pts, w))
@@ -24,7 +25,7 @@ def test_cat_worlds_keeps_each_env_its_own_world():
     w = cat_worlds([a, m])
     assert w.batch_size == torch.Size([5])
     pose = torch.tensor([[0.5, 0.5, 0.0]] * 5)
-    lidar = LidarParams(n_rays=90, fov=6.283185307179586)
+    lidar = lidar_params(n_rays=90, fov=6.283185307179586)
     both = lidar_scan(pose, w, lidar)
     assert torch.equal(both[:2], lidar_scan(pose[:2], a, lidar))
     assert torch.equal(both[2:], lidar_scan(pose[2:], m, lidar))
@@ -44,7 +45,7 @@ def test_planar_world_same_values_component_major_and_differentiable():
         assert torch.equal(getattr(p, key), getattr(w, key)) and getattr(p, key).shape == getattr(w, key).shape
     assert p.segments[..., 0].is_contiguous() and p.boxes[..., 4].is_contiguous()
     pose = torch.tensor([[0.5, 0.5, 0.0]] * 3)
-    lidar = LidarParams(n_rays=36, fov=6.283185307179586, max_range=50.0)
+    lidar = lidar_params(n_rays=36, fov=6.283185307179586, max_range=50.0)
     assert torch.equal(lidar_scan(pose, p, lidar), lidar_scan(pose, w, lidar))
     (g_planar,) = torch.autograd.grad(lidar_scan(pose, p, lidar).sum(), boxes)
     (g_plain,) = torch.autograd.grad(lidar_scan(pose, w, lidar).sum(), boxes)
@@ -52,7 +53,7 @@ def test_planar_world_same_values_component_major_and_differentiable():
 
 
 def test_planar_world_keeps_a_planar_world_and_step_gives_the_same_state():
-    from torchnav.sim import SimParams, init_state, planar_world, step
+    from torchnav.sim import init_state, planar_world, step
 
     base = make_world(2, segments=[[-3, -3, 3, -3]], circles=[[1.0, 1.0, 0.3]], boxes=[[-1.0, 1.0, 0.3, 0.2, 0.4]])
     p = planar_world(base)
@@ -60,7 +61,7 @@ def test_planar_world_keeps_a_planar_world_and_step_gives_the_same_state():
     for key in ("segments", "circles", "boxes"):  # converted once, then used as it is
         assert getattr(again, key).data_ptr() == getattr(p, key).data_ptr()
         assert getattr(p, key).data_ptr() != getattr(base, key).data_ptr()
-    params = SimParams()
+    params = sim_params()
     pose = torch.tensor([[0.0, 0.0, 0.3], [0.5, -0.5, -1.0]])
     action = torch.tensor([[0.3, 0.5], [0.2, -0.4]])
     a = step(init_state(pose, base, params), action, base, params)

@@ -1,10 +1,17 @@
-"""Strict construction of frozen config dataclasses from plain dicts (YAML, CLI).
+"""The config schema: frozen dataclasses that check themselves, and their strict construction from
+plain dicts (YAML, command lines).
 
-Unknown keys are an error that names the key and lists the valid ones (after
-VMAS's ``check_kwargs_consumed``); wrong types are an error that names the key; a
-field without a default must be set; a field made with :func:`checked` declares what
-it allows, and a value outside it is an error naming the key, the value and what is
-allowed. ``from_dict`` reports every problem of a config in one ConfigError.
+Every config dataclass of torchnav is validated the same way (``torchnav.sim.checks``, where the
+simulator's parameters use it too): a field made with :func:`checked` (or a shorthand:
+:func:`count`, :func:`positive`, :func:`one_of`, ...) declares what it allows next to its default
+and unit, ``checks()`` returns the relations between fields as ``(ok, message)`` pairs, and
+construction raises one :class:`ConfigError` listing every refused field and failed relation,
+each starting with the key it names. The task and recipe configs subclass :class:`Config`.
+
+:func:`from_dict` builds a config from nested dicts and adds what only a dict can get wrong:
+unknown keys (named with the closest valid one, after VMAS's ``check_kwargs_consumed``), missing
+required keys and wrong types. It reports every problem of every section at once, each under its
+dotted key (``task.robot.dt=0: must be a finite number > 0``).
 """
 
 from __future__ import annotations
@@ -14,13 +21,43 @@ import difflib
 import math
 import types
 import typing
-from typing import Any, Callable, Mapping, TypeVar
+from typing import Any, Mapping, TypeVar
+
+# The rules, the error and the validation every config shares; the task and recipe configs import them from here.
+from .sim.checks import (  # noqa: F401
+    Checked, ConfigError, checked, count, discount, flag, is_int, is_number, limit, non_negative, one_of, optional, positive,
+    probability, raise_problems, raises, real, refusal, sizes, within,
+)
 
 T = TypeVar("T")
+C = TypeVar("C", bound="Config")
 
 
-class ConfigError(ValueError):
-    """A configuration value or key is invalid; the message names it."""
+class Config(Checked):
+    """The base of the task and recipe configs: validated on construction like every config
+    (:class:`~torchnav.sim.checks.Checked`), built from dicts with :meth:`from_dict`, and with section
+    defaults: a field annotated with a config dataclass whose fields all have defaults, and given no
+    default itself (``robot: RobotConfig``), defaults to that class's defaults (a fresh one per config)."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        hints = typing.get_type_hints(cls)
+        for name in cls.__dict__.get("__annotations__", {}):
+            tp = hints[name]
+            if dataclasses.is_dataclass(tp) and name not in cls.__dict__ and _all_defaulted(tp):
+                setattr(cls, name, dataclasses.field(default_factory=tp))
+
+    @classmethod
+    def from_dict(cls: type[C], data: Mapping[str, Any] | None = None, where: str = "env") -> C:
+        return from_dict(cls, data, where)
+
+
+def _all_defaulted(cls: type) -> bool:
+    return all(f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+               for f in dataclasses.fields(cls) if f.init)
+
+
+# --------------------------------------------------------------------------- from_dict, to_dict, merge
 
 
 def _check_type(value: Any, tp: Any, where: str) -> Any:
@@ -79,38 +116,17 @@ def _check_type(value: Any, tp: Any, where: str) -> Any:
     return value
 
 
-def checked(test: Callable[[Any], bool], allowed: str, default: Any = dataclasses.MISSING) -> Any:
-    """A dataclass field whose value must pass ``test`` (its type included), required unless given a
-    ``default``: ``from_dict`` reports a failure as ``key=value: must be <allowed>``, and any
-    non-finite number as ``must be finite``."""
-    return dataclasses.field(default=default, metadata={"check": (test, allowed)})
-
-
-def is_int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def is_number(v: Any) -> bool:
-    return (is_int(v) or isinstance(v, float)) and math.isfinite(v)
-
-
-def raise_problems(problems: list[str]) -> None:
-    """One ConfigError for every problem found (nothing when there is none)."""
-    if problems:
-        raise ConfigError(problems[0] if len(problems) == 1 else "invalid config:\n  " + "\n  ".join(problems))
-
-
 def _key(where: str, k: Any) -> str:
     return f"{where}.{k}" if where else str(k)
 
 
-def _build(cls: type[T], data: Any, where: str, problems: list[str], top: bool) -> T | None:
+def _build(cls: type[T], data: Any, where: str, problems: list[str]) -> T | None:
     """``cls`` from ``data``, or None after appending every problem found to ``problems``."""
     if not isinstance(data, Mapping):
         problems.append(f"{where}: expected a mapping, got {type(data).__name__} {data!r}")
         return None
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
     found = len(problems)
     for k in data:
         if k not in fields:
@@ -122,45 +138,41 @@ def _build(cls: type[T], data: Any, where: str, problems: list[str], top: bool) 
         key, tp = _key(where, name), hints[name]
         if name not in data:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                problems.append(f"{key}: missing (no default: every file of this config sets it)")
+                problems.append(f"{key}: missing (this key has no default)")
             continue
-        value, rule = data[name], f.metadata.get("check")
-        if rule is not None:
-            if isinstance(value, float) and not math.isfinite(value):
-                problems.append(f"{key}={value!r}: must be finite")
-                continue
-            if not rule[0](value):
-                problems.append(f"{key}={value!r}: must be {rule[1]}")
-                continue
+        value = data[name]
         if dataclasses.is_dataclass(tp) and not isinstance(value, tp):
-            sub = _build(tp, value, key, problems, top=False)
+            sub = _build(tp, value, key, problems)
             if sub is not None:
                 kwargs[name] = sub
             continue
+        rule = f.metadata.get("check")
         try:
             kwargs[name] = _check_type(value, tp, key)
-        except ConfigError as e:
-            problems.append(str(e))
+        except ConfigError as e:  # what the field allows says more than its type
+            problems.append(refusal(key, value, rule) if rule is not None else str(e))
+            continue
+        if rule is not None and not rule[0](kwargs[name]):  # here too, so that it is named even when the section cannot be built
+            problems.append(refusal(key, value, rule))  # the value as written
     if len(problems) > found:
         return None
     try:
         return cls(**kwargs)
-    except ConfigError as e:  # the class's own checks (__post_init__) name their keys
-        problems.append(str(e) if top or str(e).startswith(where) else f"{where}: {e}")
+    except ConfigError as e:  # the class's own checks, each naming its key within the class
+        problems.extend(_key(where, p) for p in e.problems)
     except (ValueError, TypeError) as e:
-        problems.append(f"{where}: {e}")
+        problems.append(f"{where}: {e}" if where else str(e))
     return None
 
 
 def from_dict(cls: type[T], data: Mapping[str, Any] | None, where: str = "config") -> T:
     """Build dataclass ``cls`` from ``data``, recursively, rejecting unknown keys and wrong types.
 
-    Missing keys take the dataclass defaults (a field without one must be set); a field made with
-    :func:`checked` must pass its test. Every problem is reported at once, each naming its dotted
-    key starting at ``where`` (``""``: none).
+    Missing keys take the dataclass defaults (a field without one must be set); every problem of
+    every section is reported at once, each naming its dotted key starting at ``where`` (``""``: none).
     """
     problems: list[str] = []
-    obj = _build(cls, dict(data or {}), where, problems, top=True)
+    obj = _build(cls, dict(data or {}), where, problems)
     raise_problems(problems)
     return obj  # type: ignore[return-value]
 
@@ -176,13 +188,6 @@ def to_dict(obj: Any) -> Any:
     return obj
 
 
-def fields_as(cls: type[T], obj: Any, **values: Any) -> T:
-    """Dataclass ``cls`` from the fields of dataclass ``obj`` that ``cls`` has too, and ``values`` (a config
-    section as the simulator's parameters: ``fields_as(ImuParams, cfg.imu)``)."""
-    names = {f.name for f in dataclasses.fields(cls)} - set(values)
-    return cls(**{f.name: getattr(obj, f.name) for f in dataclasses.fields(obj) if f.name in names}, **values)
-
-
 def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict:
     """Recursive dict merge: values in ``override`` win; nested mappings merge."""
     out = dict(base)
@@ -192,32 +197,3 @@ def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict:
         else:
             out[k] = v
     return out
-
-
-C = TypeVar("C", bound="TaskConfig")
-
-
-class TaskConfig:
-    """The base of the task configs (``NavConfig``, ``LineConfig``): strict construction from a
-    dict, the checks of their ``__post_init__``, and section defaults: a field annotated with a
-    config dataclass and given no default (``robot: RobotConfig``) defaults to that dataclass's
-    defaults."""
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        super().__init_subclass__(**kwargs)
-        hints = typing.get_type_hints(cls)
-        for name in cls.__dict__.get("__annotations__", {}):
-            if dataclasses.is_dataclass(hints[name]) and name not in cls.__dict__:
-                setattr(cls, name, dataclasses.field(default_factory=hints[name]))
-
-    @classmethod
-    def from_dict(cls: type[C], data: Mapping[str, Any] | None = None, where: str = "env") -> C:
-        return from_dict(cls, data, where)
-
-    @staticmethod
-    def require(checks: list[tuple[bool, str]]) -> None:
-        """Raise a ConfigError with the message of the first failed ``(ok, message)`` check."""
-        for ok, msg in checks:
-            if not ok:
-                raise ConfigError(msg)
-

@@ -29,7 +29,7 @@ def main() -> None:
         boxes=[[1.5, -0.6, 0.3, 0.25, 0.4], [3.5, 0.6, 0.25, 0.6, 0.0]],
     )
     movers, mask, _ = make_movers(1, [[2.6, -0.1, 0.0, 0.3, 0.25]])
-    cam = CameraParams(n_cols=160, n_rows=90, fov=math.radians(90), height=0.3)
+    cam = CameraParams(n_cols=160, n_rows=90, fov=math.radians(90), max_range=10.0, offset=(0.0, 0.0, 0.0), height=0.3)
     pose = torch.tensor([[-1.5, 0.0, 0.0]])
     depth, rgb = camera_image(pose, world, cam, mover_world(movers, mask))
     fig = Figure(figsize=(11, 3.6), dpi=90)

@@ -130,7 +130,8 @@ def _lidar(info: dict):
 
     li = info.get("lidar") or {}
     return LidarParams(n_rays=int(li.get("n_rays", 20)), fov=float(li.get("fov", math.pi)), min_range=float(li.get("min_range", 0.0)),
-                       max_range=float(li.get("max_range", 10.0)), offset=tuple(li.get("offset", (0.0, 0.0, 0.0))))
+                       max_range=float(li.get("max_range", 10.0)), offset=tuple(li.get("offset", (0.0, 0.0, 0.0))),
+                       noise_std=0.0, scan="rays", window=0, dense_slots=1)  # the drawing reads only the ray layout
 
 
 def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10.0, stride: int = 1, dpi: int = 80) -> Path:

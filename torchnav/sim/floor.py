@@ -13,35 +13,33 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from .checks import Checked, count, non_negative, one_of, positive, real, within
 from .geometry import segment_distance
 from .math import rotate
-from .params import _require
 
 FLOOR_MODES = ("analog", "binary", "smooth")
 
 
+def _require(cond: bool, msg: str) -> None:
+    if not cond:
+        raise ValueError(msg)
+
+
 @dataclass(frozen=True)
-class FloorSensorParams:
+class FloorSensorParams(Checked):
     """A straight array of ``count`` downward sensors across the robot's front, sensor 0 the
-    rightmost (docs/line.md, "Sensor model")."""
+    rightmost (docs/line.md, "Sensor model"). It is the line task's ``sensors`` section
+    (``LineConfig.sensors``): its defaults are the task's, five photodiodes 15 mm apart, 8 cm
+    ahead of the axle."""
 
-    count: int = 5  # number of sensors
-    spacing: float = 0.015  # m between neighbouring sensor centres
-    forward: float = 0.08  # m, offset of the array ahead of the wheel axle
-    radius: float = 0.005  # m, radius of each sensor's circular footprint on the floor
-    mode: str = "analog"  # "analog" | "binary" | "smooth"
-    threshold: float = 0.5  # coverage fraction above which a sensor reports the line ("binary", on-line test)
-    noise_std: float = 0.0  # std of additive Gaussian noise on the coverage fraction (needs a generator)
-    softness: float = 0.004  # m, sigmoid scale of the "smooth" mode
-
-    def __post_init__(self) -> None:
-        _require(isinstance(self.count, int) and self.count >= 1, f"sensors.count must be a positive int, got {self.count!r}")
-        _require(self.spacing >= 0, f"sensors.spacing must be >= 0 m, got {self.spacing!r}")
-        _require(self.radius > 0, f"sensors.radius must be > 0 m, got {self.radius!r}")
-        _require(self.mode in FLOOR_MODES, f"sensors.mode must be one of {FLOOR_MODES}, got {self.mode!r}")
-        _require(0.0 < self.threshold < 1.0, f"sensors.threshold must be in (0, 1), got {self.threshold!r}")
-        _require(self.noise_std >= 0, f"sensors.noise_std must be >= 0, got {self.noise_std!r}")
-        _require(self.softness > 0, f"sensors.softness must be > 0 m, got {self.softness!r}")
+    count: int = count(1, 5)  # number of sensors
+    spacing: float = non_negative(0.015)  # m between neighbouring sensor centres
+    forward: float = real(0.08)  # m, offset of the array ahead of the wheel axle
+    radius: float = positive(0.005)  # m, radius of each sensor's circular footprint on the floor
+    mode: str = one_of(*FLOOR_MODES, default="analog")  # "analog" (coverage fraction) | "binary" | "smooth" (differentiable sigmoid)
+    threshold: float = within(0.0, 1.0, 0.5, closed="()")  # coverage fraction above which a sensor reports the line ("binary", off-line test)
+    noise_std: float = non_negative(0.0)  # std of additive Gaussian noise on the coverage fraction (analog, binary; needs a generator)
+    softness: float = positive(0.004)  # m, sigmoid scale of the "smooth" mode
 
     def offsets(self) -> list[tuple[float, float]]:
         """Sensor centres ``(x, y)`` in the robot frame, m, in sensor order."""
