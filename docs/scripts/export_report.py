@@ -29,8 +29,7 @@ from torchnav.policy import load_policy, save_policy
 
 ROOT = Path(__file__).resolve().parents[2]
 CHECKPOINTS = ["td3_arena_actor", "ppo_arena_actor", "sac_arena_actor", "ppo_movers_actor", "ppo_generalist_actor",
-               "ppo_generalist_20sectors_actor", "ppo_generalist_noguard_actor", "ppo_generalist_omega1_actor",
-               "ppo_generalist_52m_actor", "ppo_course_actor", "dqn_course_actor"]
+               "ppo_course_actor", "dqn_course_actor"]
 
 
 def evaluate(path: Path, episodes: int, seed: int, out: Path) -> dict:
