@@ -15,7 +15,7 @@ from reference import (
 )
 from torchnav.sim import (
     CameraParams, ImuParams, LidarParams, Robots, SimParams, init_robots, init_state, make_movers,
-    make_robots, make_world, robot_world, sample_env_params, step, step_robots,
+    make_robots, make_world, robot_clearance, robot_world, sample_env_params, step, step_robots,
 )
 
 F64 = torch.float64
@@ -123,6 +123,9 @@ def test_overlapping_robots_are_both_collided_and_an_absent_robot_is_invisible()
     assert s3.robots.collided.tolist() == [[True, True, False]]
     torch.testing.assert_close(s3.robots.clearance[0, :2], torch.full((2,), 0.3 - 0.4, dtype=F64), atol=1e-12, rtol=0)
     assert s3.robots.clearance[0, 2] == math.inf
+    gap = robot_clearance(pose[..., :2], params.robot_radius, robots.present)  # the robot-robot part alone
+    assert torch.equal(gap[0, :2], s3.robots.clearance[0, :2]) and gap[0, 2] == math.inf
+    assert robot_clearance(pose[:, :1, :2], 0.2, robots.present[:, :1]).tolist() == [[math.inf]]
     action = torch.tensor([[[0.2, 0.0], [0.0, 0.3], [0.5, 0.5]]], dtype=F64)
     for _ in range(5):
         s3 = step_robots(s3, action, world, params, robots)
@@ -220,6 +223,7 @@ def test_batch_equals_each_env_alone_and_a_naive_per_robot_reference():
                  for k, s in enumerate(alone)]
         _equal(state.robots, torch.cat([s.robots for s in alone]), SIM_FIELDS)
         p = state.robots.pose
+        gaps = robot_clearance(p[..., :2], ep.robot_radius, present)
         for k in range(b):
             for i in range(n):
                 if not present[k, i]:
@@ -231,6 +235,9 @@ def test_batch_equals_each_env_alone_and_a_naive_per_robot_reference():
                 ranges, clearance = _naive_robot(p, world, ep.robot_radius, present, k, i, params.lidar)
                 assert state.robots.ranges[k, i].tolist() == pytest.approx(ranges, abs=1e-9)
                 assert state.robots.clearance[k, i].item() == pytest.approx(clearance, abs=1e-12)
+                others = [math.hypot(*(p[k, i, :2] - p[k, j, :2]).tolist()) - float(ep.robot_radius[k, i] + ep.robot_radius[k, j])
+                          for j in range(n) if j != i and present[k, j]]
+                assert gaps[k, i].item() == pytest.approx(min(others, default=math.inf), abs=1e-12)
                 seen += sum(r < 6.0 for r in ranges)
     assert seen > 50
 

@@ -27,6 +27,7 @@ import torch
 from tensordict import tensorclass
 from torch import Tensor
 
+from .math import safe_hypot
 from .movers import Movers, mover_world, no_movers, step_movers
 from .params import SimParams
 from .randomize import EnvParams
@@ -125,6 +126,25 @@ def seen_world(xy: Tensor, radius: float | Tensor, present: Tensor, movers: Worl
         boxes, box_mask = xy.new_zeros(b * n, 0, 5), present.new_zeros(b * n, 0)
     return World(segments=xy.new_zeros(b * n, 0, 4), segment_mask=present.new_zeros(b * n, 0), circles=circles,
                  circle_mask=circle_mask, boxes=boxes, box_mask=box_mask, batch_size=[b * n], device=xy.device)
+
+
+def robot_clearance(xy: Tensor, radius: float | Tensor, present: Tensor) -> Tensor:
+    """``(B, N)`` signed gap (m) between each robot's disc and the nearest other present robot's disc of its
+    env (negative when they overlap); ``+inf`` for an absent robot and for one with no other present robot.
+
+    ``xy`` ``(B, N, 2)`` (m), ``radius`` m or ``(B, N)``, ``present`` ``(B, N)`` bool. The robot-robot part
+    of ``SimState.clearance`` (which also counts the world and the movers): a task tells a robot-robot
+    collision from others by it."""
+    b, n = present.shape
+    if n == 1:
+        return torch.full_like(xy[..., 0], torch.inf)
+    r = radius if isinstance(radius, Tensor) else torch.full_like(xy[..., 0], radius)
+    robot = torch.arange(n, device=xy.device)
+    other = (robot[:, None] + robot[None, 1:]) % n  # (N, N - 1): robot i's others, as in seen_world
+    x, y = xy[..., 0], xy[..., 1]
+    gap = safe_hypot(x[:, other] - x[..., None], y[:, other] - y[..., None]) - r[:, other] - r[..., None]
+    gap = torch.where(present[:, other], gap, torch.inf).amin(-1)
+    return torch.where(present, gap, torch.inf)
 
 
 def _row_world(world: World, b: int, n: int, like: Tensor) -> World:
