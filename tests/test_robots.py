@@ -79,6 +79,31 @@ def test_one_robot_equals_step_bit_for_bit(case):
     assert bool((one.ranges < 6.0).any())
 
 
+def test_robots_draw_the_noise_of_single_robot_envs():
+    """Three robots per env 20 m apart (out of each other's lidar and camera range) step exactly like the
+    B * N single-robot envs of their rows: the same odometry, IMU, wheel and lidar noise from the same
+    generator, per-robot limits, delay, radius and lidar imperfections, the same readings."""
+    b, n = 2, 3
+    params = SimParams(odom_v_noise=0.05, odom_omega_noise=0.05, imu=ImuParams(accel_noise=0.1, gyro_bias_walk=0.01),
+                       camera=CameraParams(n_cols=6, max_range=5.0), lidar=LidarParams(n_rays=10, fov=math.pi, noise_std=0.02, max_range=6.0))
+    world = make_world(b, circles=[[20.0 * i + 1.0, 0.4, 0.3] for i in range(n)], boxes=[[20.0 * i - 1.0, 0.0, 0.2, 0.5, 0.3] for i in range(n)])
+    g = torch.Generator().manual_seed(4)
+    pose = torch.rand(b, n, 3, generator=g) - 0.5
+    pose[..., 0] += 20.0 * torch.arange(n)
+    actions = torch.rand(6, b, n, 2, generator=g) * 2 - 1
+    ep = sample_env_params(RANDOMIZE, params, b * n, torch.Generator().manual_seed(5), pose)
+    many = init_robots(pose, world, params, env_params=ep.reshape(b, n), delay_steps=2)
+    rows = robot_world(world, n)
+    one = init_state(pose.reshape(b * n, 3), rows, params, env_params=ep, delay_steps=2)
+    robots = make_robots(b, n)
+    g1, g2 = torch.Generator().manual_seed(9), torch.Generator().manual_seed(9)
+    for a in actions:
+        many = step_robots(many, a, world, params, robots, generator=g1, env_params=ep.reshape(b, n))
+        one = step(one, a.reshape(b * n, 2), rows, params, generator=g2, env_params=ep)
+        _equal(many.robots, one, SIM_FIELDS, n=n)
+    assert bool((one.ranges < 6.0).any()) and bool((one.cam_depth < 5.0).any())
+
+
 # -- robots see each other -----------------------------------------------------------------------------
 
 
