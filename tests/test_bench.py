@@ -136,3 +136,17 @@ def test_worlds_bench_json_and_bad_difficulty():
     assert all(r["guide_cells"] == 16 and r["clock"] == "cpu" and _positive(r["envs_per_s"]) for r in rows)
     bad = subprocess.run(cmd[:2] + ["--difficulties", "0.5,hard"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "hard" in bad.stderr
+
+
+def test_multi_robot_bench_runs():
+    """bench/multi_robot.py end to end at a tiny size (eager, VMAS off): one JSON row per N with agent-steps/s
+    N times env-steps/s and the per-agent scaling relative to the smallest N."""
+    cmd = [sys.executable, str(ROOT / "bench" / "multi_robot.py"), "--envs", "8", "--robots", "1,3", "--rays", "4", "--modes", "eager",
+           "--vmas", "off", "--repeats", "1", "--steps", "2", "--warmup", "1", "--threads", "1", "--json", "--walls"]
+    out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr[-3000:]
+    rows = [r for r in _json_lines(out.stdout) if r.get("bench") == "multi_robot"]
+    assert [(r["sim"], r["mode"], r["robots"]) for r in rows] == [("torchnav", "eager", 1), ("torchnav", "eager", 3)]
+    for r in rows:
+        assert _positive(r["env_steps_per_s"]) and r["agent_steps_per_s"] == pytest.approx(r["robots"] * r["env_steps_per_s"], rel=1e-3)
+    assert rows[0]["per_agent_vs_first"] == 1.0 and "agent-steps/s" in out.stderr

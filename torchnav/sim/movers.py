@@ -159,11 +159,13 @@ def no_movers(batch_size: int, like: Tensor) -> Movers:
 
 
 def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy: Tensor, robot_radius: float | Tensor,
-                target: Tensor) -> tuple[Tensor, Tensor]:
+                target: Tensor, robot_mask: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """Every mover ``(B, M, 9)`` advanced by ``dt`` s, and the waypoint index ``target`` ``(B, M)`` each
     patrol and pedestrian heads for after it (module docstring). Pure; ``plan`` is only read.
 
-    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` (m, or ``(B,)``) are what pedestrians avoid besides each other.
+    ``robot_xy`` ``(B, 2)`` and ``robot_radius`` (m, or ``(B,)``) are what pedestrians avoid besides each
+    other; for several robots per env (``robots.py``) ``robot_xy`` is ``(B, N, 2)``, ``robot_radius`` m or
+    ``(B, N)``, and ``robot_mask`` ``(B, N)`` bool the robots that exist (``None``: all).
 
     The results have the shapes of the inputs but are stored mover-major (``mover_major``:
     ``movers[..., k]`` and ``target`` are contiguous ``(M, B)`` blocks), the layout the maths runs
@@ -177,7 +179,7 @@ def step_movers(movers: Tensor, plan: Tensor, mask: Tensor, dt: float, robot_xy:
     cols = mover_major(movers)  # (B, M, 9) viewed from (9, M, B) storage
     x, y, vx, vy, r, xmin, ymin, xmax, ymax = (cols[..., k].t() for k in range(N_MOVER_FIELDS))  # (M, B) each
     if plan.shape[-1]:
-        (vx, vy), target = _steer((x, y, vx, vy, r), mover_major(plan), target.t(), mask, dt, robot_xy, robot_radius)
+        (vx, vy), target = _steer((x, y, vx, vy, r), mover_major(plan), target.t(), mask, dt, robot_xy, robot_radius, robot_mask)
         target = target.t()
     x, vx = _bounce(x + vx * dt, vx, xmin + r, xmax - r)
     y, vy = _bounce(y + vy * dt, vy, ymin + r, ymax - r)
@@ -197,7 +199,7 @@ def mover_major(x: Tensor) -> Tensor:
 
 
 def _steer(cols: tuple[Tensor, ...], plan: Tensor, target: Tensor, mask: Tensor, dt: float, robot_xy: Tensor,
-           robot_radius: float | Tensor) -> tuple[tuple[Tensor, Tensor], Tensor]:
+           robot_radius: float | Tensor, robot_mask: Tensor | None = None) -> tuple[tuple[Tensor, Tensor], Tensor]:
     """New velocities ``(M, B)`` of patrols and pedestrians (ballistic movers keep theirs) and the
     waypoint index ``target`` ``(M, B)`` with reached waypoints advanced.
 
@@ -226,10 +228,15 @@ def _steer(cols: tuple[Tensor, ...], plan: Tensor, target: Tensor, mask: Tensor,
     # Pedestrians: relax towards the desired velocity, pushed by the other movers and the robot.
     # Mover i meets mover (i - s) mod M for s = 1 .. M - 1 (the rows rolled: an index, not a copy), so no
     # pair of a mover with itself is computed and masked off.
-    rr = robot_radius[None, :].to(x.dtype) if isinstance(robot_radius, Tensor) else robot_radius
     mask = mask.t()
     others = [(x.roll(s, 0), y.roll(s, 0), r.roll(s, 0), mask.roll(s, 0)) for s in range(1, x.shape[0])]
-    others.append((robot_xy[None, :, 0], robot_xy[None, :, 1], rr, None))
+    if robot_xy.dim() == 2:  # one robot per env
+        rr = robot_radius[None, :].to(x.dtype) if isinstance(robot_radius, Tensor) else robot_radius
+        others.append((robot_xy[None, :, 0], robot_xy[None, :, 1], rr, None))
+    else:  # robots (B, N, 2): one more (1, B) row of others per robot
+        for k in range(robot_xy.shape[1]):
+            rr = robot_radius[None, :, k].to(x.dtype) if isinstance(robot_radius, Tensor) else robot_radius
+            others.append((robot_xy[None, :, k, 0], robot_xy[None, :, k, 1], rr, None if robot_mask is None else robot_mask[None, :, k]))
     fx, fy = torch.zeros_like(x), torch.zeros_like(y)
     for ox, oy, orad, present in others:
         ax, ay = x - ox, y - oy

@@ -20,12 +20,13 @@ from .state import SimState, World, check_world, planar_world
 
 
 def check_action(action: Tensor, state: SimState) -> None:
-    """Raise a ValueError if ``action`` is not a ``(B, 2)`` tensor matching the state's dtype and device."""
+    """Raise a ValueError if ``action`` is not a ``(B, 2)`` tensor (``(B, N, 2)`` for a state of batch
+    ``(B, N)``, ``robots.py``) matching the state's dtype and device."""
     if not isinstance(action, Tensor):
         raise TypeError(f"action must be a torch.Tensor, got {type(action).__name__}")
-    b = state.pose.shape[0]
-    if action.shape != (b, 2):
-        raise ValueError(f"action must have shape ({b}, 2), got {tuple(action.shape)}")
+    want = (*state.pose.shape[:-1], 2)
+    if action.shape != want:
+        raise ValueError(f"action must have shape {want}, got {tuple(action.shape)}")
     if action.dtype != state.pose.dtype:
         raise ValueError(f"action has dtype {action.dtype}, expected {state.pose.dtype} (the state's dtype)")
     if action.device != state.pose.device:
@@ -64,7 +65,25 @@ def step(
     check_action(action, state)
     check_world(world, state.pose.shape[0], state.pose.dtype, state.pose.device)
     world = planar_world(world)
+    pose, vel, odom, imu, imu_bias, queue = _drive(state, action, params, wheel_speeds, generator, env_params)
+    radius = params.robot_radius if env_params is None else env_params.robot_radius
+    rows, target = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius, state.mover_target)
+    movers = Movers(rows, state.mover_mask, state.mover_plan, state.mover_boxes)  # the plan is carried unchanged
+    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, target, queue, world, params, generator, unroll, env_params)
+
+
+def _drive(state: SimState, action: Tensor, params: SimParams, wheel_speeds: bool = False, generator: torch.Generator | None = None,
+          env_params: EnvParams | None = None, frozen: Tensor | None = None) -> tuple[Tensor, ...]:
+    """The robot's part of the step: actuator delay, limits, wheel noise, kinematics, odometry and IMU.
+
+    Returns ``(pose, vel, odom, imu, imu_bias, cmd_queue)`` after the step, each ``(B, ...)`` as in
+    :class:`SimState`. ``frozen`` ``(B,)`` bool marks robots that do not move (parked or absent
+    robots of ``robots.step_robots``): their command is replaced by 0, their applied twist is 0 and
+    their pose and odometry stay as they were (random draws are made for them all the same, so the
+    other rows' noise does not depend on which are frozen)."""
     cmd = wheels_to_unicycle(action, params.track_width) if wheel_speeds else action
+    if frozen is not None:
+        cmd = torch.where(frozen[:, None], 0.0, cmd)
     queue = state.cmd_queue
     if queue.shape[1]:  # actuator delay: apply the command of `delay` steps ago
         full = torch.cat((cmd[:, None], queue), 1)  # (B, K + 1, 2), newest first
@@ -75,26 +94,33 @@ def step(
         wheels = unicycle_to_wheels(vel, params.track_width)
         wheels = wheels + env_params.wheel_noise[:, None] * torch.randn(wheels.shape, generator=generator, dtype=wheels.dtype, device=wheels.device)
         vel = wheels_to_unicycle(wheels, params.track_width)
+    if frozen is not None:  # a frozen robot stands still, whatever its queue, limits and noise say
+        vel = torch.where(frozen[:, None], 0.0, vel)
     pose = integrate(state.pose, vel, params)
     odom = step_odometry(state.odom, vel, params, generator)
+    if frozen is not None:  # kept as they were (integrating a zero twist would re-wrap the heading)
+        pose, odom = torch.where(frozen[:, None], state.pose, pose), torch.where(frozen[:, None], state.odom, odom)
     imu, imu_bias = state.imu, state.imu_bias
     if params.imu is not None:
         imu, imu_bias = step_imu(imu, imu_bias, vel, state.vel, state.time, params.imu, params.dt, generator)
-    radius = params.robot_radius if env_params is None else env_params.robot_radius
-    rows, target = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius, state.mover_target)
-    movers = Movers(rows, state.mover_mask, state.mover_plan, state.mover_boxes)  # the plan is carried unchanged
-    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, target, queue, world, params, generator, unroll, env_params)
+    return pose, vel, odom, imu, imu_bias, queue
 
 
 def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, target, queue, world, params, generator=None, unroll=None,
-           env: EnvParams | None = None) -> SimState:
+           env: EnvParams | None = None, seen: World | None = None, present: Tensor | None = None) -> SimState:
     """The state at ``pose`` with its collision, lidar and camera readings (movers included; ``target``
-    the waypoint index each patrol and pedestrian heads for)."""
-    mw = mover_world(movers.rows, movers.mask, movers.boxes) if movers.rows.shape[1] else None
+    the waypoint index each patrol and pedestrian heads for).
+
+    ``seen``, a world of batch ``B``, replaces the movers' own world as what moves around the robots
+    (``robots.py``: each robot's movers and other robots); ``present`` ``(B,)`` bool marks the robots
+    that exist: the others read ``clearance`` +inf and never collide."""
+    mw = seen if seen is not None else mover_world(movers.rows, movers.mask, movers.boxes) if movers.rows.shape[1] else None
     radius = params.robot_radius if env is None else env.robot_radius
     clearance = disc_clearance(pose, world, radius)
     if mw is not None:
         clearance = torch.minimum(clearance, disc_clearance(pose, mw, radius))
+    if present is not None:
+        clearance = torch.where(present, clearance, torch.inf)
     if env is None:
         ranges = lidar_scan(pose, world, params.lidar, generator, unroll=unroll, movers=mw)
     else:  # a misaligned sensor, per-env noise and dropout, a shorter range
@@ -148,6 +174,18 @@ def init_state(
         vel = pose.new_zeros(b, 2)
     elif vel.shape != (b, 2) or vel.dtype != pose.dtype or vel.device != pose.device:
         raise ValueError(f"vel must be a ({b}, 2) tensor of the pose's dtype and device, got {vel.dtype} {tuple(vel.shape)} on {vel.device}")
+    rows, mask, plan, boxes, target = _canonical_movers(movers, b, pose)
+    n_imu = 0 if params.imu is None else 3
+    return _sense(
+        pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
+        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan, boxes), target,
+        pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
+    )
+
+
+def _canonical_movers(movers: Movers | tuple[Tensor, Tensor] | None, b: int, pose: Tensor) -> tuple[Tensor, ...]:
+    """``init_state``'s ``movers`` checked and stored in the layout the step returns: ``(rows, mask,
+    plan, boxes, target)`` (``SimState``'s mover fields)."""
     if movers is None:
         movers = no_movers(b, pose)
     if len(movers) == 2:
@@ -171,9 +209,4 @@ def init_state(
     if rows.shape[1]:  # the layout step_movers returns: the first step reads the same strides as the next ones
         rows = mover_major(rows)
     boxes = mover_major(boxes) if boxes.shape[1] else rows.new_zeros(boxes.shape)  # carried unchanged by every step
-    n_imu = 0 if params.imu is None else 3
-    return _sense(
-        pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
-        pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan, boxes), target,
-        pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
-    )
+    return rows, mask, plan, boxes, target
