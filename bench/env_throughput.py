@@ -151,7 +151,7 @@ def bench_gym_vector(env, args: argparse.Namespace) -> dict[str, Any] | None:
     vec = TorchnavVectorEnv(env)
     vec.reset(seed=args.seed)
     rng = __import__("numpy").random.default_rng(args.seed)
-    acts = [vec.action_space.sample() if vec._discrete else rng.uniform(-1, 1, (args.num_envs, 2)).astype("float32") for _ in range(8)]
+    acts = [vec.action_space.sample() if env.cfg.action.mode == "discrete" else rng.uniform(-1, 1, (args.num_envs, 2)).astype("float32") for _ in range(8)]
     box = {"i": 0, "done": 0}
 
     def call() -> None:
