@@ -53,7 +53,8 @@ class LiveView(EpisodeRecorder):
                            for name in self.topics}
         self._wall0 = time.monotonic()
 
-    def _add(self, channel: Any, t_ns: int, payload: str) -> None:
+    def add_message(self, channel: Any, t_ns: int, payload: str) -> None:
+        """One JSON message ``payload`` on ``channel`` at ``t_ns`` ns, as ``EpisodeRecorder.add_message``."""
         channel.log(payload.encode(), log_time=t_ns)
 
     def _flush_file(self) -> None:

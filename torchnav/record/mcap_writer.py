@@ -375,7 +375,8 @@ class EpisodeRecorder:
                 ended |= st.step({k: v[e, t] for k, v in a.items()})
         return ended
 
-    def _add(self, channel: int, t_ns: int, payload: str) -> None:
+    def add_message(self, channel: int, t_ns: int, payload: str) -> None:
+        """One JSON message ``payload`` on ``channel`` (an id this recorder registered) at ``t_ns`` ns of episode time."""
         self._writer.add_message(channel, log_time=t_ns, data=payload.encode(), publish_time=t_ns)
 
 

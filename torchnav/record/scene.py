@@ -121,7 +121,7 @@ class EnvStream:
         return self.clock * self.rec.dt_ns
 
     def _add(self, name: str, msg: dict | str) -> None:
-        self.rec._add(self.channels[name], self.t, msg if isinstance(msg, str) else json.dumps(msg))
+        self.rec.add_message(self.channels[name], self.t, msg if isinstance(msg, str) else json.dumps(msg))
 
     # -- one step ---------------------------------------------------------------------------
 
