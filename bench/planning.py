@@ -77,9 +77,9 @@ def main(argv: list[str]) -> list[dict[str, Any]]:
     inflate = astar.radius + g.margins[0]
     params = RRTParams(step=rrt.gains.rrt_step, max_iters=rrt.gains.rrt_max_iters, check_step=rrt.gains.rrt_check_step)
     t0 = time.perf_counter()
-    OccupancyGrid.build(astar._fixed, g.resolution)
+    OccupancyGrid.build(astar.fixed, g.resolution)
     fixed_ms = 1e3 * (time.perf_counter() - t0)
-    shape = astar._fixed_grid.clearance.shape
+    shape = astar.fixed_grid.clearance.shape
 
     s = env.state
     world = s.world.to("cpu")

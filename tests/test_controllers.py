@@ -183,7 +183,7 @@ def test_windowed_grid_matches_full_grid_below_the_window():
     world = env.state.world.to("cpu")
     for e in range(6):
         _, rand = ctrl.env_obstacles(world, e)
-        full = OccupancyGrid.build(rand, 0.1, base=ctrl._fixed_grid.clearance).clearance
+        full = OccupancyGrid.build(rand, 0.1, base=ctrl.fixed_grid.clearance).clearance
         fast = ctrl.grid(rand).clearance
         near = full <= 0.5
         assert np.allclose(full[near], fast[near]) and (fast >= full - 1e-12).all()

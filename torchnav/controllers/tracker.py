@@ -192,9 +192,10 @@ class PlannerController(Controller):
         self._env = env
         self._bounds = spec.bounds
         self._n_fixed = (spec.n_fixed_circles, spec.n_fixed_boxes)
-        self._fixed = Obstacles(*(np.asarray(x, np.float64).reshape(-1, w) for x, w in
+        # the map's fixed obstacles and, for A*, their clearance grid (built once; each env adds its random ones)
+        self.fixed = Obstacles(*(np.asarray(x, np.float64).reshape(-1, w) for x, w in
                                   ((spec.segments, 4), (spec.circles, 3), (spec.boxes, 5))), spec.bounds)
-        self._fixed_grid = OccupancyGrid.build(self._fixed, self.gains.resolution) if self.gains.planner == "astar" else None
+        self.fixed_grid = OccupancyGrid.build(self.fixed, self.gains.resolution) if self.gains.planner == "astar" else None
         n = env.num_envs
         self.tracker = WaypointTracker(self.gains.tracker, n, self.dt, v_max=self.v_max, omega_max=self.omega_max, device=env.device)
         self._goal = torch.full((n, 2), float("nan"), device=env.device)
@@ -215,7 +216,7 @@ class PlannerController(Controller):
         episode's random ones stamped in (exact up to the largest inflation plus two cells)."""
         g = self.gains
         window = self.radius + max(g.margins) + 2 * g.resolution
-        return OccupancyGrid.build(rand, g.resolution, base=self._fixed_grid.clearance, window=window)
+        return OccupancyGrid.build(rand, g.resolution, base=self.fixed_grid.clearance, window=window)
 
     def plan(self, world, e: int, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         """Waypoints ``(N, 2)`` m from ``start`` to ``goal`` in env ``e`` of ``world`` (CPU), or None.
