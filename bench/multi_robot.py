@@ -36,7 +36,8 @@ import common  # noqa: E402  (sets TORCHINDUCTOR_COMPILE_THREADS before torch is
 
 import torch  # noqa: E402
 
-from torchnav.sim import LidarParams, SimParams, init_robots, make_robots, make_world, robot_world, step_robots  # noqa: E402
+from torchnav.sim import SimParams, init_robots, make_robots, make_world, robot_world, step_robots  # noqa: E402
+from torchnav.tasks import NavConfig  # noqa: E402
 
 RADIUS = 0.1  # m, VMAS navigation's agent_radius
 LIDAR_RANGE = 0.35  # m, VMAS navigation's lidar_range
@@ -45,8 +46,9 @@ ROOM = 2.0  # m, --walls: a room [-ROOM, ROOM]^2
 
 
 def torchnav_params(rays: int) -> SimParams:
-    return SimParams(robot_radius=RADIUS, v_min=-1.0, v_max=1.0, omega_max=2.0,
-                     lidar=LidarParams(n_rays=rays, fov=2 * math.pi, max_range=LIDAR_RANGE))
+    """The navigation task's robot as VMAS's agent (radius, speed both ways), with a 360-degree lidar of ``rays`` rays."""
+    return NavConfig.from_dict({"robot": {"radius": RADIUS, "v_max": 1.0, "omega_max": 2.0}, "action": {"forward_only": False},
+                                "lidar": {"n_rays": rays, "n_sectors": rays, "fov_deg": 360.0, "max_range": LIDAR_RANGE}}).sim_params()
 
 
 def start_poses(b: int, n: int, g: torch.Generator) -> torch.Tensor:

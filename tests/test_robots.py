@@ -13,15 +13,16 @@ from reference import (
     arc_pose, point_box_dist, point_seg_dist, random_world, ray_box, ray_circle, ray_segment,
     valid_obstacles, wrap,
 )
+from params import camera_params, lidar_params, sim_params
 from torchnav.sim import (
-    CameraParams, ImuParams, LidarParams, Robots, SimParams, init_robots, init_state, make_movers,
+    ImuParams, Robots, init_robots, init_state, make_movers,
     make_robots, make_world, robot_clearance, robot_world, sample_env_params, step, step_robots,
 )
 
 F64 = torch.float64
 SIM_FIELDS = ("pose", "vel", "odom", "ranges", "clearance", "collided", "time", "imu", "imu_bias", "cam_depth", "cmd_queue")
 MOVER_FIELDS = ("movers", "mover_mask", "mover_plan", "mover_target", "mover_boxes")
-RAYS = LidarParams(n_rays=36, fov=2 * math.pi, max_range=8.0)
+RAYS = lidar_params(n_rays=36, fov=2 * math.pi, max_range=8.0)
 
 
 def _equal(a, b, fields, n=None):
@@ -36,10 +37,10 @@ def _equal(a, b, fields, n=None):
 # -- one robot is the single-robot step ---------------------------------------------------------------
 
 
-NOISY = SimParams(odom_v_noise=0.05, odom_omega_noise=0.05, lin_acc_max=2.0, ang_acc_max=5.0,
-                  lidar=LidarParams(n_rays=16, fov=2 * math.pi, noise_std=0.02, max_range=6.0))
-EVERYTHING = SimParams(lin_acc_max=2.0, imu=ImuParams(accel_noise=0.1, gyro_noise=0.01, accel_bias_walk=0.01),
-                       camera=CameraParams(n_cols=8), lidar=LidarParams(n_rays=12, fov=math.pi, scan="sectors", max_range=6.0))
+NOISY = sim_params(odom_v_noise=0.05, odom_omega_noise=0.05, lin_acc_max=2.0, ang_acc_max=5.0,
+                  lidar=lidar_params(n_rays=16, fov=2 * math.pi, noise_std=0.02, max_range=6.0))
+EVERYTHING = sim_params(lin_acc_max=2.0, imu=ImuParams(accel_noise=0.1, gyro_noise=0.01, accel_bias_walk=0.01),
+                       camera=camera_params(n_cols=8), lidar=lidar_params(n_rays=12, fov=math.pi, scan="sectors", max_range=6.0))
 RANDOMIZE = {"v_max": (0.3, 0.5), "delay": (0, 2), "wheel_noise": (0.0, 0.05), "range_noise": (0.0, 0.05), "dropout": (0.0, 0.2),
              "angle_offset": (-0.05, 0.05), "max_range": (4.0, 6.0), "robot_radius": (0.15, 0.25)}
 
@@ -84,8 +85,8 @@ def test_robots_draw_the_noise_of_single_robot_envs():
     B * N single-robot envs of their rows: the same odometry, IMU, wheel and lidar noise from the same
     generator, per-robot limits, delay, radius and lidar imperfections, the same readings."""
     b, n = 2, 3
-    params = SimParams(odom_v_noise=0.05, odom_omega_noise=0.05, imu=ImuParams(accel_noise=0.1, gyro_bias_walk=0.01),
-                       camera=CameraParams(n_cols=6, max_range=5.0), lidar=LidarParams(n_rays=10, fov=math.pi, noise_std=0.02, max_range=6.0))
+    params = sim_params(odom_v_noise=0.05, odom_omega_noise=0.05, imu=ImuParams(accel_noise=0.1, gyro_bias_walk=0.01),
+                       camera=camera_params(n_cols=6, max_range=5.0), lidar=lidar_params(n_rays=10, fov=math.pi, noise_std=0.02, max_range=6.0))
     world = make_world(b, circles=[[20.0 * i + 1.0, 0.4, 0.3] for i in range(n)], boxes=[[20.0 * i - 1.0, 0.0, 0.2, 0.5, 0.3] for i in range(n)])
     g = torch.Generator().manual_seed(4)
     pose = torch.rand(b, n, 3, generator=g) - 0.5
@@ -117,11 +118,11 @@ def test_ray_towards_another_robot_reads_the_analytic_distance():
     pose = torch.zeros(b, 2, 3, dtype=F64)
     pose[:, 1, 0], pose[:, 1, 1], pose[:, 1, 2] = d, h, math.pi  # robot 1 faces robot 0
     world = make_world(b, dtype=F64)
-    ep = sample_env_params({}, SimParams(lidar=RAYS), 2 * b, torch.Generator().manual_seed(0), pose).reshape(b, 2)
+    ep = sample_env_params({}, sim_params(lidar=RAYS), 2 * b, torch.Generator().manual_seed(0), pose).reshape(b, 2)
     ep.robot_radius[:, 1] = 0.3
     for scan in ("rays", "sectors"):
-        lidar = LidarParams(n_rays=36, fov=2 * math.pi, max_range=8.0, scan=scan)
-        s = init_robots(pose, world, SimParams(lidar=lidar), env_params=ep)
+        lidar = lidar_params(n_rays=36, fov=2 * math.pi, max_range=8.0, scan=scan)
+        s = init_robots(pose, world, sim_params(lidar=lidar), env_params=ep)
         ranges = s.robots.ranges
         if scan == "rays":  # ray 18 of 36 looks straight ahead
             torch.testing.assert_close(ranges[:, 0, 18], d - torch.sqrt(0.3**2 - h**2), atol=1e-12, rtol=0)
@@ -139,7 +140,7 @@ def test_overlapping_robots_are_both_collided_and_an_absent_robot_is_invisible()
     """Robots 0 and 1 overlap: both collided, with the same clearance. Robot 2 is absent, placed on
     top of robot 0 and in front of robot 1's rays: it never collides, nobody sees it, and its action
     does not move it; the two others read what they read in an env of two robots."""
-    params = SimParams(lidar=RAYS)
+    params = sim_params(lidar=RAYS)
     pose = torch.tensor([[[0.0, 0.0, 0.0], [0.3, 0.0, math.pi / 2], [0.05, 0.0, 0.0]]], dtype=F64)
     world = make_world(1, segments=[[3.0, -3.0, 3.0, 3.0]], dtype=F64)
     robots = Robots(torch.tensor([[True, True, False]]), torch.zeros(1, 3, dtype=torch.bool))
@@ -163,7 +164,7 @@ def test_overlapping_robots_are_both_collided_and_an_absent_robot_is_invisible()
 def test_parked_robot_does_not_move_but_is_seen_and_hit():
     """Robot 1 is parked 1.52 m ahead of robot 0 with a command to drive (and acceleration limits): it
     stays put, while robot 0's ray straight ahead shortens by v dt a step until both collide."""
-    params = SimParams(lidar=RAYS, lin_acc_max=1.0, v_max=0.5)
+    params = sim_params(lidar=RAYS, lin_acc_max=1.0, v_max=0.5)
     pose = torch.tensor([[[0.0, 0.0, 0.0], [1.52, 0.0, 0.5]]], dtype=F64)
     world = make_world(1, dtype=F64)
     robots = Robots(torch.ones(1, 2, dtype=torch.bool), torch.tensor([[False, True]]))
@@ -183,7 +184,7 @@ def test_parked_robot_does_not_move_but_is_seen_and_hit():
 
 def test_pedestrians_avoid_every_present_robot():
     """A pedestrian walking at two robots swerves around the second one only while it is present."""
-    params, world = SimParams(), make_world(1)
+    params, world = sim_params(), make_world(1)
     movers = make_movers(1, [[-3.0, 0.05, 0.6, 0.0, 0.25]], waypoints=[[[3.0, 0.0]]], pedestrians=True)
     pose = torch.tensor([[[0.0, 5.0, 0.0], [0.0, 0.0, 0.0]]])
     both = Robots(torch.ones(1, 2, dtype=torch.bool), torch.zeros(1, 2, dtype=torch.bool))
@@ -226,7 +227,7 @@ def test_batch_equals_each_env_alone_and_a_naive_per_robot_reference():
     radii): the batched step equals each env stepped alone bit for bit, and every robot's pose, ranges
     and clearance equal a per-robot Python loop over rays, obstacles and the other robots."""
     b, n = 4, 3
-    params = SimParams(lidar=LidarParams(n_rays=24, fov=2 * math.pi, max_range=6.0))
+    params = sim_params(lidar=lidar_params(n_rays=24, fov=2 * math.pi, max_range=6.0))
     world = random_world(b, (2, 3, 2), seed=5)
     g = torch.Generator().manual_seed(2)
     pose = torch.rand(b, n, 3, generator=g, dtype=F64) * 3 - 1.5
@@ -270,7 +271,7 @@ def test_batch_equals_each_env_alone_and_a_naive_per_robot_reference():
 def test_static_world_made_once_equals_made_per_call():
     """``robot_world`` made once gives what a per-env world repeated at every call gives."""
     b, n = 3, 4
-    params = SimParams(lidar=RAYS)
+    params = sim_params(lidar=RAYS)
     world = random_world(b, (2, 2, 2), seed=1, dtype=torch.float32)
     pose = torch.rand(b, n, 3, generator=torch.Generator().manual_seed(0)) * 4 - 2
     robots = make_robots(b, n)
@@ -284,7 +285,7 @@ def test_static_world_made_once_equals_made_per_call():
 
 
 def test_bad_inputs_name_the_problem():
-    params, world = SimParams(), make_world(2)
+    params, world = sim_params(), make_world(2)
     state = init_robots(torch.zeros(2, 3, 3), world, params)
     robots = make_robots(2, 3)
     a = torch.zeros(2, 3, 2)
@@ -312,8 +313,8 @@ def test_bad_inputs_name_the_problem():
 def test_gradcheck_through_robot_robot_ranges(scan):
     """gradcheck in float64 of every robot's ranges and clearance after one step, with respect to the
     start poses and the actions of all robots: the other robots' discs pass gradients along."""
-    lidar = LidarParams(n_rays=16, fov=2 * math.pi, max_range=5.0, scan=scan)
-    params = SimParams(lidar=lidar, robot_radius=0.3)
+    lidar = lidar_params(n_rays=16, fov=2 * math.pi, max_range=5.0, scan=scan)
+    params = sim_params(lidar=lidar, robot_radius=0.3)
     world = make_world(1, circles=[[0.3, 2.0, 0.4]], dtype=F64)
     robots = make_robots(1, 3)
     start = torch.tensor([[[0.0, 0.0, 0.1], [1.6, 0.17, 2.9], [0.9, -1.3, 1.7]]], dtype=F64, requires_grad=True)
@@ -333,7 +334,7 @@ def test_gradcheck_through_robot_robot_ranges(scan):
 def test_gradients_through_many_steps_are_finite_and_cross_robots():
     """Through 25 steps, robot 0's nearest range has a finite, non-zero gradient with respect to robot 1's
     actions (robot 1 is what robot 0 sees), and grad mode leaves every value unchanged."""
-    params = SimParams(lidar=LidarParams(n_rays=16, fov=math.pi, max_range=5.0))
+    params = sim_params(lidar=lidar_params(n_rays=16, fov=math.pi, max_range=5.0))
     world = make_world(2, segments=[[4.0, -4.0, 4.0, 4.0]])
     pose = torch.tensor([[[0.0, 0.0, 0.0], [2.0, 0.3, math.pi]], [[0.0, 0.0, 0.0], [1.5, -0.4, 3.0]]])
     robots = make_robots(2, 2)
@@ -357,7 +358,7 @@ def test_gradients_through_many_steps_are_finite_and_cross_robots():
 
 
 def _compile_case():
-    params = SimParams(lidar=LidarParams(n_rays=12, fov=2 * math.pi, max_range=6.0))
+    params = sim_params(lidar=lidar_params(n_rays=12, fov=2 * math.pi, max_range=6.0))
     b, n = 4, 3
     world = random_world(b, (2, 2, 2), seed=2)
     pose = torch.rand(b, n, 3, generator=torch.Generator().manual_seed(1), dtype=F64) * 4 - 2
