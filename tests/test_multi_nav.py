@@ -50,7 +50,8 @@ def test_counts_per_env_and_absent_robots():
     s2, out = task.step(s, torch.ones(16, 5, 2), g)
     absent = ~s.present
     assert torch.equal(s2.sim.robots.pose[absent], pose[absent])  # absent robots do not move
-    assert out["terminated"][absent].all() and (out["reward"][absent] == 0).all()
+    assert (out["reward"][absent] == 0).all() and not out["collision"][absent].any()
+    assert torch.equal(out["terminated"][absent], out["team_terminated"][:, None].expand(16, 5)[absent])
 
 
 def test_neighbour_features_are_permutation_invariant_and_padded():

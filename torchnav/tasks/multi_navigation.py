@@ -199,7 +199,7 @@ class MultiNavTask:
         """Advance every env one step; ``action`` ``(B, N, 2)`` (or one-hot ``(B, N, n)``), ignored for
         parked and absent robots. Returns the new state and ``out`` with, per robot ``(B, N)``:
         ``observation`` ``(B, N, D)``, ``reward``, ``terms`` (dict of weighted terms), ``terminated``,
-        ``truncated``, ``success``, ``collision``, ``robot_collision``; per env ``(B,)``:
+        ``truncated`` (a parked robot stays terminated until its env resets; absent robots follow the env), ``success``, ``collision``, ``robot_collision``; per env ``(B,)``:
         ``team_terminated``, ``team_truncated``, ``team_success``."""
         b, n = state.present.shape
         robots = state.robots
@@ -225,7 +225,8 @@ class MultiNavTask:
         driving = state.present & ~(arrived | crashed)
         team_terminated = ~driving.any(-1) | team_crash
         team_truncated = (steps >= self.cfg.max_steps) & ~team_terminated
-        terminated = arrived | crashed | ~state.present | team_terminated[:, None]
+        # Absent robots follow the team: flagging them done from the start would read as an episode that never began.
+        terminated = arrived | crashed | team_terminated[:, None]
         truncated = team_truncated[:, None] & ~terminated
         team_success = (arrived | ~state.present).all(-1) & state.present.any(-1)
         obs = self.observe(sim, state.goal, state.present)
