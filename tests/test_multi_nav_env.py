@@ -75,3 +75,23 @@ def test_bad_action_shape_is_named():
     env.step(td)
     with pytest.raises(ValueError, match="3 robots"):
         env._step(TensorDict({"agents": TensorDict({"action": torch.zeros(2, 2, 2)}, batch_size=[2, 2])}, batch_size=[2]))
+
+
+def test_torchrl_multi_agent_policy_runs_on_any_robot_count():
+    """TorchRL's MultiAgentMLP runs on the agent group; a parameter-shared network made for 4 robots
+    steps envs of 2 and 8 robots too: the observation's size does not depend on N."""
+    from tensordict.nn import TensorDictModule
+    from torchrl.modules import MLP, MultiAgentMLP
+
+    sizes = {n: make_multi_nav_env("arena", 2, n).task.obs_size for n in (2, 4, 8)}
+    assert len(set(sizes.values())) == 1
+    mappo = MultiAgentMLP(n_agent_inputs=sizes[4], n_agent_outputs=2, n_agents=4, centralised=False, share_params=True, depth=1, num_cells=16)
+    shared = MLP(in_features=sizes[4], out_features=2, depth=1, num_cells=16)  # one network for every robot, any count
+    for net, counts in ((mappo, (4,)), (shared, (2, 4, 8))):
+        policy = TensorDictModule(torch.nn.Sequential(net, torch.nn.Tanh()), in_keys=[("agents", "observation")], out_keys=[("agents", "action")])
+        for n in counts:
+            env = make_multi_nav_env("arena", 2, n, max_steps=5)
+            with torch.no_grad():
+                r = env.rollout(8, policy, break_when_any_done=False)
+            assert r["agents", "action"].shape == (2, 8, n, 2) and r["agents", "action"].abs().max() <= 1
+            assert r["next", "done"].any()  # went through an auto-reset
