@@ -6,14 +6,14 @@ import pytest
 import torch
 
 from torchnav.config import ConfigError
-from torchnav.tasks import MultiNavConfig, MultiNavTask
+from torchnav.tasks import CurriculumState, MultiNavConfig, MultiNavTask
 
 
-def make(n=4, num_envs=6, seed=0, **robots):
-    cfg = MultiNavConfig.from_dict({"robots": {"n": n, **robots}})
+def make(n=4, num_envs=6, seed=0, curriculum=None, **robots):
+    cfg = MultiNavConfig.from_dict({"robots": {"n": n, **robots}, "curriculum": curriculum or {"mode": "off"}})
     task = MultiNavTask(cfg, num_envs)
     g = torch.Generator().manual_seed(seed)
-    return task, task.initial_state(g), g
+    return task, task.initial_state(CurriculumState.initial(cfg.curriculum), g)[0], g
 
 
 def pair_gaps(xy):
@@ -101,7 +101,7 @@ def test_truncation_at_max_steps():
     cfg = MultiNavConfig.from_dict({"max_steps": 3, "robots": {"n": 2}})
     task = MultiNavTask(cfg, 2)
     g = torch.Generator().manual_seed(1)
-    s = task.initial_state(g)
+    s = task.initial_state(CurriculumState.initial(cfg.curriculum), g)[0]
     for _ in range(3):
         s, out = task.step(s, torch.tensor([-1.0, 0.0]).expand(2, 2, 2), g)
     assert out["team_truncated"].all() and out["truncated"].all() and not out["terminated"].any()
@@ -111,7 +111,9 @@ def test_partial_reset_keeps_other_envs_and_is_seeded():
     task, s, g = make(n=3, num_envs=4, seed=3)
     _, s_again, _ = make(n=3, num_envs=4, seed=3)
     assert torch.equal(s.start, s_again.start) and torch.equal(s.observation, s_again.observation)
-    r = task.reset(s, torch.tensor([True, False, True, False]), g)
+    cur = CurriculumState.initial(task.cfg.curriculum)
+    r, cur2 = task.reset(s, torch.tensor([True, False, True, False]), cur, g)
+    assert cur2.placements == cur.placements + 6  # 2 envs of 3 robots
     assert torch.equal(r.start[1], s.start[1]) and torch.equal(r.start[3], s.start[3])
     assert not torch.equal(r.start[0], s.start[0])
 
@@ -123,3 +125,16 @@ def test_unsupported_options_are_refused():
         MultiNavConfig.from_dict({"robots": {"n": 2, "min_n": 3}})
     with pytest.raises(ConfigError, match="robots.n"):
         MultiNavConfig.from_dict({"robots": {"n": 17}})
+
+
+def test_goal_curriculum_bounds_random_goals_and_grows_per_robot():
+    task, s, g = make(n=3, num_envs=8, curriculum={"init_radius": 1.0, "min_radius": 0.5, "growth": 0.01})
+    d = (s.goal - s.start[..., :2]).norm(dim=-1)
+    assert (d <= 1.0 + 1e-5).float().mean() > 0.9  # the fallback may go further where there is no room
+    cur = CurriculumState.initial(task.cfg.curriculum)
+    _, cur = task.initial_state(cur, g)
+    assert int(cur.placements) == 24 and abs(float(cur.radius) - 1.24) < 1e-5
+    assert int(task.initial_state(cur, g)[1].placements) == 48
+    swap, _, g2 = make(n=3, num_envs=2, scenario="circle_swap", curriculum={"init_radius": 1.0})
+    start = CurriculumState.initial(swap.cfg.curriculum)
+    assert int(swap.initial_state(start, g2)[1].placements) == 0  # its goals are not drawn from the curriculum

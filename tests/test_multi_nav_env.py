@@ -61,9 +61,10 @@ def test_partial_reset_and_state_dict():
     env.reset(TensorDict({"_reset": torch.tensor([[True], [False], [False]])}, batch_size=[3]))
     assert torch.equal(env.state.start[1:], before[1:]) and not torch.equal(env.state.start[0], before[0])
     assert (env.state.steps[1:] == 1).all() and env.state.steps[0] == 0
+    assert int(env.curriculum.placements) == 8  # 6 robots placed, then 2 more
     again = MultiNavEnv(env.cfg, num_envs=3)
     again.load_state_dict(sd)
-    assert torch.equal(again.state.start, before)
+    assert torch.equal(again.state.start, before) and int(again.curriculum.placements) == 6
     resumed = again.reset(set_state=True)
     assert (resumed["episode_length"][:, 0] == 1).all()
 

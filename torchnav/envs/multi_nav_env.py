@@ -18,7 +18,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 
-from ..tasks import MultiNavConfig, MultiNavState, MultiNavTask
+from ..tasks import CurriculumState, MultiNavConfig, MultiNavState, MultiNavTask
 from .base import BatchedEnv
 
 AGENT_FLAGS = ("success", "collision", "robot_collision")
@@ -28,6 +28,14 @@ class MultiNavEnv(BatchedEnv):
     """``num_envs`` envs of ``cfg.robots.n`` robot slots each (see the module docstring for the keys)."""
 
     config_class, task_class = MultiNavConfig, MultiNavTask
+
+    def __init__(self, cfg: MultiNavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
+        super().__init__(cfg, num_envs, device, seed)
+        self.restart_curriculum()
+
+    def restart_curriculum(self) -> None:
+        """Put the goal-radius curriculum back to its initial state (``random`` scenario only)."""
+        self.curriculum = CurriculumState.initial(self.cfg.curriculum, device=self.device)
 
     @property
     def n_robots(self) -> int:
@@ -63,8 +71,10 @@ class MultiNavEnv(BatchedEnv):
 
     def _new_state(self, mask: torch.Tensor | None) -> MultiNavState:
         if mask is None:
-            return self.task.initial_state(self._generator)
-        return self.task.reset(self._state, mask, self._generator)
+            state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
+        else:
+            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator)
+        return state
 
     def _reset_view(self, s: MultiNavState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         return s.observation, {}
@@ -94,7 +104,9 @@ class MultiNavEnv(BatchedEnv):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = self._checked_agent_action(tensordict)
-        self._state, out = self.task.step(self._state, action, self._generator)
+        before = self._state
+        self._state, out = self.task.step(before, action, self._generator)
+        self.curriculum = self.task.after_step(self.curriculum, before, out)
         terminated, truncated = out["team_terminated"][:, None], out["team_truncated"][:, None]
         td = self._agent_outputs(self._state, out["terms"], {f: out[f][..., None] for f in AGENT_FLAGS})
         a_term, a_trunc = out["terminated"][..., None], out["truncated"][..., None]
@@ -121,6 +133,16 @@ class MultiNavEnv(BatchedEnv):
             "reward_terms": {k: v[..., None] for k, v in terms.items()}, "episode_return": s.ep_return[..., None],
         }, batch_size=ab, device=self.device)
         return TensorDict({"agents": agents, "episode_length": s.steps.to(s.ep_return.dtype)[:, None]}, batch_size=b, device=self.device)
+
+    extra_state_keys = ("curriculum", "generator")
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """Curriculum, generator and episodes in flight: ``env.state_dict()["_extra_state"]``."""
+        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state()}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum
+        self.curriculum.load_state_dict(state["curriculum"])
 
     def advance(self, action: torch.Tensor):
         raise NotImplementedError("MultiNavEnv has no differentiable rollout yet: step it through TorchRL's step")

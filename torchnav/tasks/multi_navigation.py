@@ -9,7 +9,10 @@ episode ends when no present robot still drives, or at ``max_steps`` (truncation
 
 What this first version leaves out (refused with a clear error): procedural worlds, maps with random
 movers, domain randomisation, observation history and visit memory, the speed guard and
-the geodesic progress reward. Goals are drawn anywhere on the map: there is no goal curriculum.
+the geodesic progress reward. ``crossing`` and ``circle_swap`` place their goals by their geometry;
+in ``random`` the goal-radius curriculum (``curriculum``) bounds every robot's goal distance, one
+curriculum for all robots: each placed goal is a placement and each robot's finished episode an
+episode of it (``CurriculumState``, as for ``NavTask``).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from ..sim import World, safe_hypot, wrap_angle
 from ..sim.robots import Robots, RobotsState, init_robots, robot_clearance, step_robots
 from ..worlds.layout import uniform
 from .config import MultiNavConfig
+from .curriculum import CurriculumState, after_episodes, after_placements
 from .navigation import NavTask
 from .rewards import reward_terms
 from .sampling import place_random_objects, sample_goals, sample_starts
@@ -132,8 +136,9 @@ class MultiNavTask:
             return torch.full((m,), rc.n, dtype=torch.int64, device=self.device)
         return torch.randint(rc.min_n, rc.n + 1, (m,), generator=generator, device=self.device)
 
-    def _places(self, world: World, generator: torch.Generator) -> tuple[Tensor, Tensor]:
-        """Starts ``(m, N, 3)`` and goals ``(m, N, 2)`` of the configured scenario."""
+    def _places(self, world: World, radius: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+        """Starts ``(m, N, 3)`` and goals ``(m, N, 2)`` of the configured scenario; ``random`` goals lie
+        within ``radius`` (0-d, m: the curriculum's) of their starts where there is room."""
         c, rc, rob = self.cfg, self.cfg.reset, self.cfg.robots
         spec, m, n, like = self.nav.spec, world.batch_size[0], self.n, world.segments
         xmin, ymin, xmax, ymax = spec.bounds
@@ -152,27 +157,27 @@ class MultiNavTask:
             w = (xmax - xmin) / 3
             bands = [SimpleNamespace(bounds=(xmin, ymin, xmin + w, ymax)), SimpleNamespace(bounds=(xmax - w, ymin, xmax, ymax))]
         starts, goals = [], []
-        far = torch.tensor(max(xmax - xmin, ymax - ymin) * 2, dtype=like.dtype, device=self.device)
         for i in range(n):
             home, away = bands[i % 2], bands[(i + 1) % 2]
             before_s = torch.stack([s[:, :2] for s in starts], 1) if starts else None
             before_g = torch.stack(goals, 1) if goals else None
             start, _ = sample_starts(world, home, need, rc.candidates, generator, before_s, apart)
-            r_min = 0.0 if rob.scenario == "crossing" else c.curriculum.min_radius
-            goal, _ = sample_goals(world, away, start[:, :2], r_min, far * (rob.scenario != "crossing"), rc.goal_clearance,
+            # crossing: no near goals (radius 0), only goals in the far band
+            r_min, r_max = (0.0, radius * 0) if rob.scenario == "crossing" else (c.curriculum.min_radius, radius)
+            goal, _ = sample_goals(world, away, start[:, :2], r_min, r_max, rc.goal_clearance,
                                    rc.candidates, generator, before_g, goal_apart)
             starts.append(start)
             goals.append(goal)
         return torch.stack(starts, 1), torch.stack(goals, 1)
 
-    def _fresh(self, idx: Tensor, generator: torch.Generator) -> MultiNavState:
+    def _fresh(self, idx: Tensor, cur: CurriculumState, generator: torch.Generator) -> MultiNavState:
         m = idx.shape[0]
         world = self.nav.base_world[idx]
         if self.cfg.robots.scenario != "circle_swap":
             nowhere = world.segments.new_full((m, 2), -1.0e6)  # no start or goal to keep clear of yet: the robots come after
             world = place_random_objects(world, self.nav.spec, nowhere, nowhere, self.cfg.reset.candidates, generator)
         counts = self._counts(m, generator)
-        start, goal = self._places(world, generator)
+        start, goal = self._places(world, cur.radius, generator)
         present = torch.arange(self.n, device=self.device) < counts[:, None]
         robots = Robots(present, torch.zeros_like(present))
         sim = init_robots(start, world, self.nav.params, robots)
@@ -185,13 +190,31 @@ class MultiNavTask:
             batch_size=[m], device=self.device,
         )
 
-    def initial_state(self, generator: torch.Generator) -> MultiNavState:
-        """New episodes in every env."""
-        return self._fresh(torch.arange(self.num_envs, device=self.device), generator)
+    def initial_state(self, cur: CurriculumState, generator: torch.Generator) -> tuple[MultiNavState, CurriculumState]:
+        """New episodes in every env, and the curriculum after their goals."""
+        state = self._fresh(torch.arange(self.num_envs, device=self.device), cur, generator)
+        return state, self._placed(cur, state.present)
 
-    def reset(self, state: MultiNavState, mask: Tensor, generator: torch.Generator) -> MultiNavState:
-        """New episodes where ``mask`` ``(B,)`` is True; the other envs are left bit-identical."""
-        return NavTask.replace_where(state, mask, lambda idx: self._fresh(idx, generator))[0]
+    def reset(self, state: MultiNavState, mask: Tensor, cur: CurriculumState, generator: torch.Generator) -> tuple[MultiNavState, CurriculumState]:
+        """New episodes where ``mask`` ``(B,)`` is True (the other envs are left bit-identical), and the
+        curriculum after their goals."""
+        new, n = NavTask.replace_where(state, mask, lambda idx: self._fresh(idx, cur, generator))
+        return new, (self._placed(cur, new.present & mask.reshape(-1, 1)) if n else cur)
+
+    def _placed(self, cur: CurriculumState, placed: Tensor) -> CurriculumState:
+        """The curriculum after the goals of the robots ``placed`` ``(B, N)`` (only ``random`` draws from it)."""
+        if self.cfg.robots.scenario != "random":
+            return cur
+        return after_placements(cur, self.cfg.curriculum, placed.sum())
+
+    def after_step(self, cur: CurriculumState, before: MultiNavState, out: dict[str, Tensor]) -> CurriculumState:
+        """The curriculum after a step from ``before`` with outputs ``out``: every robot whose episode
+        ended in it (parked, or its env's ended) is one finished episode, a success if it arrived."""
+        if self.cfg.robots.scenario != "random":
+            return cur
+        robots = before.robots
+        finished = (out["terminated"] | out["truncated"]) & robots.present & ~robots.parked
+        return after_episodes(cur, self.cfg.curriculum, finished, out["success"])
 
     # -- step -------------------------------------------------------------------------
 
