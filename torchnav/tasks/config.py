@@ -294,3 +294,30 @@ def _check_family(name: str) -> None:
             raise ConfigError(f"worlds.families: {name!r}: {e}") from None
     elif name not in FAMILIES:
         raise ConfigError(f"worlds.families: unknown family {name!r}; known: {', '.join(FAMILIES)}, or {MAP_PREFIX}<map> with a map of {available_maps()}")
+
+
+SCENARIOS = ("random", "circle_swap", "crossing")
+ON_COLLISION = ("robot", "team")
+
+
+@dataclass(frozen=True)
+class RobotsConfig(Config):
+    """Several robots per env (docs/multi_robot.md): how many, where they start, what a collision ends."""
+
+    n: int = checked(lambda v: isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= 16, "a whole number in [1, 16]", 4)  # robot slots per env
+    min_n: int = count(0, 0)  # > 0: each reset draws an env's robot count uniformly in [min_n, n] (the others are absent); 0: always n
+    scenario: str = one_of(*SCENARIOS, default="random")  # "random" starts and goals, "circle_swap" (goals at the antipodes), "crossing" (two groups swap sides)
+    on_collision: str = one_of(*ON_COLLISION, default="robot")  # a collision parks that "robot" (an obstacle from then on), or ends the "team"'s episode
+    neighbours: int = count(0, 4)  # k nearest other robots in each robot's observation (5 values each, padded with a 0 flag)
+    separation: float = non_negative(0.2)  # m, free gap between two robots' discs at the start, and between goals beyond 2 * goal_tolerance
+    circle_radius: float = non_negative(0.0)  # m, circle_swap's circle; 0: 0.4 of the map's smaller side
+
+    def checks(self) -> list[tuple[bool, str]]:
+        return [(self.min_n <= self.n, f"min_n={self.min_n} must be at most n={self.n}")]
+
+
+@dataclass(frozen=True)
+class MultiNavConfig(NavConfig):
+    """The navigation task with ``robots.n`` robots per env: every NavConfig section, plus ``robots``."""
+
+    robots: RobotsConfig

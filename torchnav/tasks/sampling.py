@@ -58,9 +58,20 @@ def _inside(xy: Tensor, bounds, margin) -> Tensor:
     return (x >= xmin + margin) & (x <= xmax - margin) & (y >= ymin + margin) & (y <= ymax - margin)
 
 
-def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+def _away(cand: Tensor, clear: Tensor, need: float, avoid: Tensor | None, avoid_need: float) -> Tensor:
+    """``clear`` ``(n, K)`` lowered where a candidate lies closer than ``avoid_need`` m to a point of ``avoid``
+    ``(n, J, 2)`` (the robots and goals placed before it), so that ``clear >= need`` also asks that gap."""
+    if avoid is None or avoid.shape[1] == 0:
+        return clear
+    gap = (cand[:, :, None, :] - avoid[:, None, :, :]).norm(dim=-1).amin(-1)  # (n, K)
+    return torch.minimum(clear, gap - avoid_need + need)
+
+
+def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: torch.Generator,
+                  avoid: Tensor | None = None, avoid_need: float = 0.0) -> tuple[Tensor, Tensor]:
     """Start poses ``(n, 3)`` whose position is at least ``need`` m from every obstacle of ``world``
-    and from the world's edge, with a uniform random heading.
+    and from the world's edge, with a uniform random heading; with ``avoid`` ``(n, J, 2)``, also at
+    least ``avoid_need`` m from each of those points (the other robots' starts: multi_navigation.py).
 
     Fallback: the candidate with the largest clearance. Also returns whether a
     valid candidate was found ``(n,)``.
@@ -70,17 +81,19 @@ def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: t
     xmin, ymin, xmax, ymax = spec.bounds
     m = min(need, 0.49 * min(xmax - xmin, ymax - ymin))
     xy = torch.stack((uniform(xmin + m, xmax - m, (n, k), generator, like), uniform(ymin + m, ymax - m, (n, k), generator, like)), -1)
-    clear = _clearance(xy, world)
+    clear = _away(xy, _clearance(xy, world), need, avoid, avoid_need)
     idx, found = _pick(clear >= need, clear)
     heading = uniform(-math.pi, math.pi, (n,), generator, like)
     return torch.cat((_gather(xy, idx), heading[:, None]), dim=-1), found
 
 
 def sample_goals(
-    world: World, spec: MapSpec, start_xy: Tensor, r_min: float, r_max: Tensor, need: float, k: int, generator: torch.Generator
+    world: World, spec: MapSpec, start_xy: Tensor, r_min: float, r_max: Tensor, need: float, k: int, generator: torch.Generator,
+    avoid: Tensor | None = None, avoid_need: float = 0.0,
 ) -> tuple[Tensor, Tensor]:
     """Goals ``(n, 2)`` at a distance in ``[r_min, r_max]`` from ``start_xy`` ``(n, 2)``, inside the
-    world and at least ``need`` m from every obstacle.
+    world and at least ``need`` m from every obstacle (and ``avoid_need`` m from each point of ``avoid``
+    ``(n, J, 2)``, as :func:`sample_starts`).
 
     ``r_max`` is a 0-d tensor (the curriculum radius). Distance and direction are
     uniform. Fallback, in order: a valid goal drawn uniformly over the whole world
@@ -95,7 +108,7 @@ def sample_goals(
     xmin, ymin, xmax, ymax = spec.bounds
     anywhere = torch.stack((uniform(xmin, xmax, (n, k), generator, like), uniform(ymin, ymax, (n, k), generator, like)), -1)
     cand = torch.cat((near, anywhere), dim=1)  # (n, 2k): near candidates first
-    clear = _clearance(cand, world)
+    clear = _away(cand, _clearance(cand, world), need, avoid, avoid_need)
     sep = (cand - start_xy[:, None, :]).norm(dim=-1)
     ok = (clear >= need) & _inside(cand, spec.bounds, need) & (sep >= r_min)
     score = torch.where(_inside(cand, spec.bounds, 0.0), clear, torch.full_like(clear, -_BIG / 4))

@@ -1,0 +1,159 @@
+"""TorchRL multi-agent environment for several robots per env (docs/multi_robot.md): a
+:class:`~torchnav.envs.base.BatchedEnv` of batch ``(num_envs,)`` around ``MultiNavTask`` whose robots
+form one agent group of batch ``(num_envs, n_robots)``, laid out as TorchRL's multi-agent envs (VMAS)
+lay theirs out: ``("agents", "observation")``, ``("agents", "action")``, ``("agents", "reward")``,
+per-robot ``("agents", "done" / "terminated" / "truncated")`` beside the env's own ``done`` flags, and
+``("agents", "mask")``, which robots exist in each env.
+
+A robot that parks (goal reached or collided) reads ``("agents", "terminated")`` True until its env
+resets; the env resets only when its own ``done`` is set (``"_reset"`` ``(B, 1)``), so TorchRL's
+auto-reset, which also passes the robots' flags as ``("agents", "_reset")``, leaves running envs alone.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
+
+from ..tasks import CurriculumState, MultiNavConfig, MultiNavState, MultiNavTask
+from .base import BatchedEnv
+
+AGENT_FLAGS = ("success", "collision", "robot_collision")
+
+
+class MultiNavEnv(BatchedEnv):
+    """``num_envs`` envs of ``cfg.robots.n`` robot slots each (see the module docstring for the keys)."""
+
+    config_class, task_class = MultiNavConfig, MultiNavTask
+
+    def __init__(self, cfg: MultiNavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
+        super().__init__(cfg, num_envs, device, seed)
+        self.restart_curriculum()
+
+    def restart_curriculum(self) -> None:
+        """Put the goal-radius curriculum back to its initial state (``random`` scenario only)."""
+        self.curriculum = CurriculumState.initial(self.cfg.curriculum, device=self.device)
+
+    @property
+    def n_robots(self) -> int:
+        return self.task.n
+
+    # -- specs ----------------------------------------------------------------------
+
+    def _make_specs(self) -> None:
+        b, n, dev = self.batch_size, self.task.n, self.device
+        ab = (*b, n)
+        flag = lambda shape: Categorical(2, shape=(*shape, 1), dtype=torch.bool, device=dev)  # noqa: E731
+        col = lambda: Unbounded(shape=(*ab, 1), device=dev)  # noqa: E731
+        agents = Composite(
+            observation=Unbounded(shape=(*ab, self.task.obs_size), device=dev), mask=flag(ab),
+            pose=Unbounded(shape=(*ab, 3), device=dev), goal=Unbounded(shape=(*ab, 2), device=dev),
+            **{f: flag(ab) for f in AGENT_FLAGS},
+            reward_terms=Composite({k: col() for k in self.task.term_names}, shape=ab, device=dev),
+            episode_return=col(), shape=ab, device=dev,
+        )
+        self.observation_spec = Composite(agents=agents, team_success=flag(b), episode_length=Unbounded(shape=(*b, 1), device=dev),
+                                          shape=b, device=dev)
+        if self.cfg.action.mode == "discrete":
+            k = len(self.cfg.action.discrete_set)
+            action = OneHot(k, shape=(*ab, k), device=dev)
+        else:
+            action = Bounded(-1.0, 1.0, shape=(*ab, 2), device=dev)
+        self.full_action_spec = Composite(agents=Composite(action=action, shape=ab, device=dev), shape=b, device=dev)
+        self.full_reward_spec = Composite(agents=Composite(reward=col(), shape=ab, device=dev), shape=b, device=dev)
+        dones = lambda shape: {k: flag(shape) for k in ("done", "terminated", "truncated")}  # noqa: E731
+        self.full_done_spec = Composite(**dones(b), agents=Composite(**dones(ab), shape=ab, device=dev), shape=b, device=dev)
+
+    # -- reset and step ---------------------------------------------------------------
+
+    def _new_state(self, mask: torch.Tensor | None) -> MultiNavState:
+        if mask is None:
+            state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
+        else:
+            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator)
+        return state
+
+    def _reset_view(self, s: MultiNavState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        return s.observation, {}
+
+    def _reset(self, tensordict: TensorDictBase | None = None, set_state: bool = False, **options: Any) -> TensorDictBase:
+        """New episodes in every env, or where the env's ``"_reset"`` ``(B, 1)`` is set (the robots'
+        ``("agents", "_reset")`` is not a reason to reset: a parked robot waits for its env);
+        ``set_state=True`` continues the episodes held."""
+        if options:
+            raise ValueError(f"MultiNavEnv.reset: unknown options {sorted(options)}; it takes none")
+        if set_state:
+            if self._state is None:
+                raise RuntimeError("MultiNavEnv.reset(set_state=True): the env holds no episodes to continue")
+        else:
+            mask = None if tensordict is None else tensordict.get("_reset", None)
+            self._state = self._new_state(None if self._state is None or mask is None else mask.reshape(-1))
+        s = self._state
+        parked = (s.arrived | s.crashed)[..., None]
+        zero = torch.zeros_like(s.present)
+        terms = {k: torch.zeros_like(s.ep_return) for k in self.task.term_names}
+        flags = {f: zero[..., None].clone() for f in AGENT_FLAGS}
+        out = self._agent_outputs(s, terms, flags)
+        false = lambda: torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)  # noqa: E731
+        out.update({"done": false(), "terminated": false(), "truncated": false(), "team_success": false(),
+                    ("agents", "done"): parked.clone(), ("agents", "terminated"): parked.clone(), ("agents", "truncated"): zero[..., None].clone()})
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = self._checked_agent_action(tensordict)
+        before = self._state
+        self._state, out = self.task.step(before, action, self._generator)
+        self.curriculum = self.task.after_step(self.curriculum, before, out)
+        terminated, truncated = out["team_terminated"][:, None], out["team_truncated"][:, None]
+        td = self._agent_outputs(self._state, out["terms"], {f: out[f][..., None] for f in AGENT_FLAGS})
+        a_term, a_trunc = out["terminated"][..., None], out["truncated"][..., None]
+        td.update({"done": terminated | truncated, "terminated": terminated, "truncated": truncated, "team_success": out["team_success"][:, None],
+                   ("agents", "reward"): out["reward"][..., None], ("agents", "done"): a_term | a_trunc, ("agents", "terminated"): a_term,
+                   ("agents", "truncated"): a_trunc})
+        return td
+
+    def _checked_agent_action(self, tensordict: TensorDictBase) -> torch.Tensor:
+        action = tensordict.get(("agents", "action"))
+        spec = self.full_action_spec["agents", "action"]
+        if action.shape != spec.shape:
+            raise ValueError(f"MultiNavEnv.step: ('agents', 'action') has shape {tuple(action.shape)}, expected {tuple(spec.shape)} "
+                             f"({spec.shape[-1]} values per robot, {self.n_robots} robots, {self.num_envs} envs)")
+        if self.cfg.check_actions and not torch.isfinite(action).all():
+            bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
+            raise ValueError(f"MultiNavEnv.step: action contains NaN or inf in envs {bad[:10]}; fix the policy, or pass check_actions=False")
+        return action
+
+    def _agent_outputs(self, s: MultiNavState, terms: dict[str, torch.Tensor], flags: dict[str, torch.Tensor]) -> TensorDict:
+        b, ab = self.batch_size, (*self.batch_size, self.task.n)
+        agents = TensorDict({
+            "observation": s.observation, "mask": s.present[..., None].clone(), "pose": s.sim.robots.pose, "goal": s.goal, **flags,
+            "reward_terms": {k: v[..., None] for k, v in terms.items()}, "episode_return": s.ep_return[..., None],
+        }, batch_size=ab, device=self.device)
+        return TensorDict({"agents": agents, "episode_length": s.steps.to(s.ep_return.dtype)[:, None]}, batch_size=b, device=self.device)
+
+    extra_state_keys = ("curriculum", "generator")
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """Curriculum, generator and episodes in flight: ``env.state_dict()["_extra_state"]``."""
+        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state()}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum
+        self.curriculum.load_state_dict(state["curriculum"])
+
+    def advance(self, action: torch.Tensor):
+        raise NotImplementedError("MultiNavEnv has no differentiable rollout yet: step it through TorchRL's step")
+
+
+def make_multi_nav_env(map: str = "arena", num_envs: int = 64, n_robots: int = 4, device: torch.device | str = "cpu", seed: int | None = 0,
+                       **overrides: Any) -> MultiNavEnv:
+    """Build a ``MultiNavEnv`` from keyword overrides of ``MultiNavConfig`` (nested dicts for sections).
+
+    Example: ``make_multi_nav_env("arena", 256, 4, robots={"scenario": "circle_swap"})``; ``n_robots`` is ``robots.n``.
+    Unknown keys raise a ConfigError naming the key."""
+    robots = {"n": n_robots, **overrides.pop("robots", {})}
+    cfg = MultiNavConfig.from_dict({"map": map, "robots": robots, **overrides})
+    return MultiNavEnv(cfg, num_envs=num_envs, device=device, seed=seed)
