@@ -93,6 +93,11 @@ class LineEvalConfig(EvalConfig):
 
 
 @dataclass(frozen=True)
+class MultiNavEvalConfig(EvalConfig):
+    record_episodes: int = count(0, 0)  # must stay 0: recording several robots is not implemented
+
+
+@dataclass(frozen=True)
 class LoggerConfig(Config):
     backend: str = one_of(*LOGGER_BACKENDS, default="csv")  # TorchRL loggers (extras [tensorboard], [wandb]), written to <run>/logs
     root: str = "runs"  # parent of run directories
@@ -348,6 +353,7 @@ class APGLidar(NavRecipe):
 @dataclass(frozen=True)
 class MultiNavRecipe(Recipe):
     task: MultiNavConfig
+    eval: MultiNavEvalConfig
 
 
 @dataclass(frozen=True)
