@@ -46,8 +46,8 @@ from torchnav.checkpoint import load_checked, save_checked
 from torchnav.config import ConfigError, to_dict
 from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED
 from torchnav.policy import STATE_KEY, Actor, RecurrentActor, save_policy, policy_payload, to_policy
-from torchnav.protocol import LineProtocol, NavProtocol, TaskProtocol
-from torchnav.tasks import NavConfig
+from torchnav.protocol import LineProtocol, MultiNavProtocol, NavProtocol, TaskProtocol
+from torchnav.tasks import MultiNavConfig, NavConfig
 from torchnav.train_config import LOGGER_BACKENDS, Recipe, check_backend, check_threads, load_config, resumed_config, save_config  # noqa: F401
 
 RECENT_EPISODES = 500  # training episodes behind the train/<outcome>_rate figures of the progress bar and logs
@@ -126,6 +126,8 @@ def setup(name: str, argv: list[str], ckpt_format: str, action_mode: str | None 
 def task_protocol(cfg: Recipe) -> TaskProtocol:
     """The task protocol (``torchnav.protocol``) of a recipe config, from its ``task`` section: an
     unknown or malformed map or track is named now, before the run directory exists."""
+    if isinstance(cfg.task, MultiNavConfig):  # a NavConfig too: checked first
+        return MultiNavProtocol(cfg.task)
     if isinstance(cfg.task, NavConfig):
         return NavProtocol(cfg.task, compile_step=cfg.env.compile_step)
     return LineProtocol(cfg.task, laps=cfg.eval.laps)
@@ -320,16 +322,20 @@ class RecurrentCarry:
 
 
 @torch.no_grad()
-def observation_stats(env, steps: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mean and standard deviation ``(obs_size,)`` of the observation under random actions for ``steps``
+def observation_stats(env, steps: int, key: Any = "observation") -> tuple[torch.Tensor, torch.Tensor]:
+    """Mean and standard deviation ``(obs_size,)`` of the observation (``key``: ``("agents", "observation")``
+    for the multi-robot env, every robot slot pooled) under random actions for ``steps``
     steps; 0 and 1 for the features the task marks as already scaled (``task.unit_features``). The env
     is left as it was (episodes, curriculum, generator): the rollout is a look, not training."""
     before = env.state_dict()
     td = env.rollout(steps, break_when_any_done=False)
     env.load_state_dict(before)
-    obs = td["observation"].reshape(-1, td["observation"].shape[-1]).double()
+    obs = td[key].reshape(-1, td[key].shape[-1]).double()
     loc, scale = obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
-    unit = env.task.unit_features.to(loc.device)
+    unit = getattr(env.task, "unit_features", None)  # the multi-robot task marks none
+    if unit is None:
+        return loc, scale
+    unit = unit.to(loc.device)
     return loc.masked_fill(unit, 0.0), scale.masked_fill(unit, 1.0)
 
 
@@ -454,6 +460,8 @@ class Progress:
             return
         nxt = flat["next"][done]
         self.recent.extend(zip(*[nxt[k].reshape(-1).tolist() for k in self.run.task.outcome_keys]))
+        if "episode" not in nxt.keys():  # the multi-robot env has no episode statistics
+            return
         ep = nxt["episode"]
         for k in ep.keys():
             self.run.logger.log_scalar(f"episode/{k}", ep[k].float().mean().item(), step=self.run.counters["frames"])

@@ -262,10 +262,10 @@ class SavedPolicy:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def config(self):
-        """The task config object (``NavConfig`` or ``LineConfig``) it was trained with."""
-        from .tasks import LineConfig, NavConfig
+        """The task config object (``NavConfig``, ``LineConfig`` or ``MultiNavConfig``) it was trained with."""
+        from .tasks import LineConfig, MultiNavConfig, NavConfig
 
-        configs = {"nav": NavConfig, "line": LineConfig}
+        configs = {"nav": NavConfig, "line": LineConfig, "multi_nav": MultiNavConfig}
         if self.task not in configs:
             raise ValueError(f"{self.path}: unknown task {self.task!r}")
         return configs[self.task].from_dict(self.task_config, where=f"{self.path}:task_config")

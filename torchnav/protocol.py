@@ -14,11 +14,11 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .config import to_dict
-from .envs import LineEnv, NavEnv
+from .envs import LineEnv, MultiNavEnv, NavEnv
 from .envs.base import BatchedEnv
 from .evaluation import (eval_config, format_lap_summary, format_summary, outcome_letters, record_to_file, record_with, run_episodes, run_line_episodes,
                          summarize, summarize_laps)
-from .tasks import LineConfig, NavConfig
+from .tasks import LineConfig, MultiNavConfig, NavConfig
 
 
 class TaskProtocol:
@@ -161,12 +161,93 @@ class LineProtocol(TaskProtocol):
         return format_lap_summary(s, title=title or f"final evaluation on {self.where()}: {self.laps} lap(s) from random starts, deterministic policy")
 
 
-PROTOCOLS: dict[str, type[TaskProtocol]] = {p.name: p for p in (NavProtocol, LineProtocol)}
+class MultiNavProtocol(TaskProtocol):
+    """Several robots per env (``MultiNavEnv``): evaluation plays ``episodes`` envs of the training
+    config (its scenario, robot count and curriculum start) to their first episode's end with one
+    deterministic policy for every robot. The summary's rates: ``team_success`` (envs whose every
+    present robot reached its goal), ``at_goal`` (present robots at their goal), ``robot_collision``
+    (present robots that hit another robot), ``collision`` (present robots that hit anything),
+    ``timeout`` (envs truncated at ``max_steps``); ``robots``: the present robots counted."""
+
+    name, place, config_class, env_class = "multi_nav", "map", MultiNavConfig, MultiNavEnv
+    outcome_keys = ("team_success",)  # top-level flags of a finished env's episode
+    outcomes = ("team_success", "at_goal", "robot_collision", "collision", "timeout")
+
+    def __init__(self, config: MultiNavConfig) -> None:
+        from .maps import load_map
+
+        load_map(config.map)  # an unknown or malformed map is named now, before any run starts
+        super().__init__(config)
+
+    def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
+        """``policy``: a TensorDict module reading ``"observation"`` ``(..., D)`` and writing ``"action"``
+        (``torchnav.policy.to_policy``), applied to every robot's observation ``(E, N, D)``."""
+        import torch
+        from tensordict import TensorDict
+
+        env = self.eval_env(int(episodes), device, seed)
+        td = env.reset()
+        E, N = env.num_envs, env.n_robots
+        finished = torch.zeros(E, dtype=torch.bool, device=env.device)
+        at_goal = torch.zeros(E, N, dtype=torch.bool, device=env.device)
+        hit_robot, hit = torch.zeros_like(at_goal), torch.zeros_like(at_goal)
+        team, timeout = torch.zeros_like(finished), torch.zeros_like(finished)
+        present = td["agents", "mask"].reshape(E, N).clone()
+        with torch.no_grad():
+            for _ in range(int(self.config.max_steps) + 1):
+                obs = td["agents", "observation"]
+                act = policy(TensorDict({"observation": obs}, batch_size=obs.shape[:-1]))["action"]
+                td["agents", "action"] = act
+                nxt = env.step(td)["next"]
+                live = ~finished
+                a = nxt["agents"]
+                at_goal |= a["success"].reshape(E, N) & live[:, None]
+                hit_robot |= a["robot_collision"].reshape(E, N) & live[:, None]
+                hit |= a["collision"].reshape(E, N) & live[:, None]
+                done = nxt["done"].reshape(E) & live
+                team |= nxt["team_success"].reshape(E) & done
+                timeout |= nxt["truncated"].reshape(E) & done
+                finished |= done
+                if bool(finished.all()):
+                    break
+                td = nxt  # an env that finished keeps stepping unread: no auto-reset here
+        robots = int(present.sum())
+
+        def rate(flags: torch.Tensor, over: int) -> dict[str, float]:
+            return {"rate": float(flags.sum()) / max(over, 1), "count": int(flags.sum())}
+
+        return {"episodes": E, "robots": robots, "team_success": rate(team, E), "at_goal": rate(at_goal & present, robots),
+                "robot_collision": rate(hit_robot & present, robots), "collision": rate(hit & present, robots), "timeout": rate(timeout, E)}
+
+    def format(self, s: dict[str, Any], title: str | None = None) -> str:
+        title = title or (f"final evaluation on {self.where()}, {self.config.robots.n} robots ({self.config.robots.scenario}), "
+                          f"shared deterministic policy")
+        lines = [title, f"  {s['episodes']} episodes, {s['robots']} robots"]
+        lines += [f"  {k:<16} {100 * s[k]['rate']:6.1f}%  ({s[k]['count']})" for k in self.outcomes]
+        return "\n".join(lines)
+
+    def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict | None = None,
+               reset: Callable[[Any], Any] | None = None) -> Any:
+        raise NotImplementedError("MCAP recording of several robots is not implemented yet: set eval.record_episodes=0")
+
+    def record_with(self, *args: Any, **kwargs: Any) -> Any:
+        raise NotImplementedError("recording several robots is not implemented yet")
+
+    def status(self, env) -> str:
+        return f"radius {env.curriculum.radius.item():.2f}m" if self.config.robots.scenario == "random" else ""
+
+    def scalars(self, env) -> dict[str, float]:
+        return {"curriculum/radius": env.curriculum.radius.item()} if self.config.robots.scenario == "random" else {}
 
 
-def task_protocol(config: NavConfig | LineConfig, **options: Any) -> TaskProtocol:
-    """The protocol of a task config: ``NavProtocol(config, anywhere=, compile_step=, map=)`` or
-    ``LineProtocol(config, laps=)``."""
+PROTOCOLS: dict[str, type[TaskProtocol]] = {p.name: p for p in (NavProtocol, LineProtocol, MultiNavProtocol)}
+
+
+def task_protocol(config: NavConfig | LineConfig | MultiNavConfig, **options: Any) -> TaskProtocol:
+    """The protocol of a task config: ``NavProtocol(config, anywhere=, compile_step=, map=)``,
+    ``LineProtocol(config, laps=)`` or ``MultiNavProtocol(config)``."""
+    if isinstance(config, MultiNavConfig):  # a NavConfig too: checked first
+        return MultiNavProtocol(config, **options)
     for p in PROTOCOLS.values():
         if isinstance(config, p.config_class):
             return p(config, **options)

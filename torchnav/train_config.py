@@ -39,7 +39,7 @@ import yaml
 from .config import (Config, ConfigError, checked, count, discount, flag, from_dict, is_int, non_negative, one_of, positive,
                      probability, real, sizes, to_dict)
 from .policy import RECURRENT
-from .tasks import LineConfig, NavConfig
+from .tasks import LineConfig, MultiNavConfig, NavConfig
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "recipes" / "configs"  # the recipes' YAML files in a source checkout
 
@@ -90,6 +90,11 @@ class EvalConfig(Config):
 @dataclass(frozen=True)
 class LineEvalConfig(EvalConfig):
     laps: int = count(1, 1)  # an episode succeeds when it completes this many laps
+
+
+@dataclass(frozen=True)
+class MultiNavEvalConfig(EvalConfig):
+    record_episodes: int = count(0, 0)  # must stay 0: recording several robots is not implemented
 
 
 @dataclass(frozen=True)
@@ -203,6 +208,23 @@ class PPOTrain(Train):
     # torchnav-actor-v3 (docs/training.md#recurrent-policies)
     recurrent: str = one_of(*RECURRENT, default="off", hint=' (in a YAML file quote "off": unquoted it reads as false)')
     recurrent_hidden: int = count(1, 128)  # size of the GRU's hidden state (train.recurrent: gru)
+
+
+@dataclass(frozen=True)
+class MAPPOTrain(PPOTrain):
+    """``train`` of ``mappo_nav``: PPO with one policy and one value network shared by every robot.
+    Frames are env steps (each steps ``robots.n`` robots); a minibatch is ``minibatch_size`` env
+    steps with all their robots. ``recurrent`` must stay off."""
+
+    total_frames: int = count(1, 1_048_576)  # env steps over all envs (128 batches of 256 envs x 32 steps)
+    frames_per_batch: int = count(1, 8192)  # env steps per PPO iteration (a multiple of env.num_envs)
+    epochs: int = count(1, 4)  # passes over each batch
+    minibatch_size: int = count(1, 2048)  # env steps (all their robots) per gradient step (at most frames_per_batch)
+    lr: float = positive(3e-4)  # Adam learning rate (policy, log-std and value network together)
+    hidden: tuple[int, ...] = sizes((128, 128))  # MLP hidden sizes of the policy and value networks
+    # central: MAPPO, the value network sees every robot slot's observation (TorchRL MultiAgentMLP,
+    # centralised); local: IPPO, each robot's value from its own observation; parameters shared either way
+    critic: str = one_of("central", "local", default="central")
 
 
 @dataclass(frozen=True)
@@ -329,6 +351,22 @@ class APGLidar(NavRecipe):
 
 
 @dataclass(frozen=True)
+class MultiNavRecipe(Recipe):
+    task: MultiNavConfig
+    eval: MultiNavEvalConfig
+
+
+@dataclass(frozen=True)
+class MAPPONav(MultiNavRecipe):
+    train: MAPPOTrain
+
+    def checks(self) -> list[tuple[bool, str]]:
+        return super().checks() + [
+            (self.train.recurrent == "off", f"train.recurrent={self.train.recurrent!r}: mappo_nav has no recurrent policy (use off)"),
+            (self.eval.record_episodes == 0, f"eval.record_episodes={self.eval.record_episodes}: recording several robots is not implemented (use 0)")]
+
+
+@dataclass(frozen=True)
 class PPOLine(LineRecipe):
     train: PPOTrain
 
@@ -347,7 +385,7 @@ class APGLine(LineRecipe):
 # recipe (recipes/<name>.py, recipes/configs/<name>.yaml) -> its config class
 RECIPES: dict[str, type[Recipe]] = {
     "td3_lidar": TD3Lidar, "sac_lidar": SACLidar, "ppo_lidar": PPOLidar, "apg_lidar": APGLidar,
-    "ppo_line": PPOLine, "dqn_line": DQNLine, "apg_line": APGLine,
+    "ppo_line": PPOLine, "dqn_line": DQNLine, "apg_line": APGLine, "mappo_nav": MAPPONav,
 }
 
 
