@@ -10,6 +10,7 @@ import importlib
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -92,6 +93,80 @@ def test_envs_refuse_wrong_action_shape_dtype_and_nan(kind):
     bad = TensorDict({"action": torch.full((4, 2), float("nan"))}, batch_size=[4])
     with pytest.raises(ValueError, match="NaN or inf in envs"):
         env.step(bad)
+
+
+BAD_ACTIONS = [  # for an 8-env continuous batch: (action, what the message must contain)
+    (torch.zeros(8), r"action has shape \(8,\), expected \(8, 2\)"),
+    (torch.zeros(8, 3), r"action has shape \(8, 3\)"),
+    (torch.zeros(8, 2, 1), r"action has shape \(8, 2, 1\)"),
+    (torch.zeros(8, 2, dtype=torch.int32), "floating-point tensor, got torch.int32"),
+    (torch.zeros(8, 2, dtype=torch.bool), "floating-point tensor, got torch.bool"),
+    (torch.zeros(8, 2, dtype=torch.complex64), "floating-point tensor, got torch.complex64"),
+    (torch.zeros(8, 2, device="meta"), "action is on device meta, expected the env's device cpu"),
+    (torch.full((8, 2), float("inf")), "NaN or inf in envs"),
+]
+
+
+@pytest.mark.parametrize("action,message", BAD_ACTIONS, ids=[m for _, m in BAD_ACTIONS])
+def test_env_step_names_every_bad_action(action, message):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_nav_env
+
+    env = make_nav_env("arena", num_envs=8)
+    env.reset()
+    with pytest.raises(ValueError, match=message):
+        env.step(TensorDict({"action": action}, batch_size=[8]))
+
+
+@pytest.mark.parametrize("batch", [[4], [1], [], [8, 1]])
+def test_env_step_names_a_batch_of_another_size(batch):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_nav_env
+
+    env = make_nav_env("arena", num_envs=8)
+    env.reset()
+    td = TensorDict({"action": torch.zeros(*batch, 2)}, batch_size=batch)
+    with pytest.raises(ValueError) as e:
+        env.step(td)
+    assert f"batch size {tuple(batch)}, expected (8,)" in str(e.value) and "an action is (8, 2)" in str(e.value)
+    with pytest.raises(ValueError, match=r"expected \(8,\)"):
+        env.reset(td)
+    env.step(TensorDict({"action": torch.zeros(8, 2)}, batch_size=[8]))  # still steps after the refusals
+
+
+GYM_BAD_ACTIONS = [  # (vector actions for 8 envs, single-env action, what the message must contain)
+    (np.zeros((4, 2)), np.zeros((1, 2)), "must have shape"),
+    (np.zeros((1, 2)), np.zeros(3), "must have shape"),
+    (np.zeros(8), np.zeros((2, 1)), "must have shape"),
+    (np.zeros((8, 2), dtype=bool), np.zeros(2, dtype=bool), "real numbers"),
+    (np.zeros((8, 2), dtype=complex), np.zeros(2, dtype=complex), "real numbers"),
+    (torch.zeros(8, 2, device="meta"), torch.zeros(2, device="meta"), "meta device"),
+    ("ab", "ab", "real numbers"),
+    (None, None, "real numbers"),
+    ([[0, 0], [0]], [0, [0]], "must be an array"),
+    (np.full((8, 2), np.nan), np.full(2, np.nan), "NaN or inf"),
+]
+
+
+@pytest.mark.parametrize("vector,single,message", GYM_BAD_ACTIONS, ids=[f"{i}-{m}" for i, (_, _, m) in enumerate(GYM_BAD_ACTIONS)])
+def test_gym_and_sb3_adapters_name_every_bad_action(vector, single, message):
+    from torchnav.gym import navigation_env, navigation_vector_env, sb3_vec_env
+
+    vec = navigation_vector_env(num_envs=8)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        vec.step(vector)
+    one = navigation_env()
+    one.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        one.step(single)
+    pytest.importorskip("stable_baselines3")
+    sb3 = sb3_vec_env(vec)
+    sb3.reset()
+    with pytest.raises(ValueError, match=message):
+        sb3.step(vector)
 
 
 # --------------------------------------------------------------------------- checkpoints
@@ -283,3 +358,59 @@ def test_track_alias_bomb_is_refused(tmp_path):
     path.write_text(_alias_bomb("width: 0.02\n"))
     with pytest.raises(TrackError, match="expands to more than"):
         load_track(path)
+
+
+BAD_TRACKS = [  # (track file, what the message must contain): each refused before the curve is allocated
+    ("width: 0.02\nspacing: 1.0e-9\nlines:\n  - {points: [[0, 0], [1, 0], [1, 1]], closed: true}",
+     "spacing: a line 3.41421 m long at spacing 1e-09 m would need 3,414,213,562 points, more than the 1,000,000 allowed"),
+    ("width: 0.02\nspacing: 1.0e-300\nlines:\n  - {points: [[0, 0], [1, 0], [1, 1]], closed: true}", "spacing: a line"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e6, 0], [1.0e6, 1.0e6]], closed: true}", "spacing: a line"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e5, 0], [1.0e5, 1.0e5]], closed: true, corner_radius: 2.0e4}",
+     "lines[0].corner_radius: the fillets"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e4, 0], [1.0e4, 1.0e4]], closed: true, smooth: true}", "lines[0].points: the spline"),
+]
+
+
+@pytest.mark.parametrize("text,message", BAD_TRACKS, ids=[str(i) for i in range(len(BAD_TRACKS))])
+def test_track_resampling_is_bounded_up_front(tmp_path, text, message):
+    import time
+
+    from torchnav.tracks import load_track
+
+    path = tmp_path / "t.yaml"
+    path.write_text(text)
+    t0 = time.perf_counter()
+    with pytest.raises(TrackError) as e:
+        load_track(path)
+    assert message in str(e.value) and str(path) in str(e.value)
+    assert time.perf_counter() - t0 < 5
+
+
+def test_track_at_the_point_limit_builds(tmp_path):
+    from torchnav.tracks import load_track
+    from torchnav.tracks.geometry import MAX_CURVE_POINTS
+
+    side = MAX_CURVE_POINTS * 0.02 / 4 * 0.99  # a square lap just under the limit at the default spacing
+    path = tmp_path / "t.yaml"
+    path.write_text(f"width: 0.02\nlines:\n  - {{points: [[0, 0], [{side}, 0], [{side}, {side}], [0, {side}]], closed: true}}")
+    assert len(load_track(path).lap) <= MAX_CURVE_POINTS + 1
+
+
+@pytest.mark.parametrize("kind", ["map", "track"])
+def test_image_over_pillows_own_limit_is_named(tmp_path, monkeypatch, kind):
+    from PIL import Image
+
+    from torchnav.maps import load_map
+    from torchnav.tracks import load_track
+
+    Image.new("L", (300, 300), 255).save(tmp_path / "big.png")
+    # Pillow refuses images over twice its MAX_IMAGE_PIXELS inside open(); lower it so a small file trips it.
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100 * 100)
+    if kind == "map":
+        (tmp_path / "m.yaml").write_text("size: [10, 10]\noccupancy: {image: big.png, resolution: 0.01}\n")
+        with pytest.raises(MapError, match=r"big\.png: more than the 16,777,216 pixels allowed"):
+            load_map(tmp_path / "m.yaml")
+    else:
+        (tmp_path / "t.yaml").write_text("image: big.png\nresolution: 0.01\n")
+        with pytest.raises(TrackError, match=r"big\.png: more than the 16,777,216 pixels allowed"):
+            load_track(tmp_path / "t.yaml")
