@@ -303,7 +303,11 @@ BAD_MAPS = [
     (ALIAS_BOMB, "expands to more than 2,000,000 values through its aliases"),
     ("size: [5, 5]\nl0: &l0 [1]\nwalls: [" + ", ".join(["*l0"] * 101) + "]", "more than 100 alias references"),
     ("size: " + "[" * 40 + "1" + "]" * 40, "nested deeper than 32 levels"),
-    ("size: [5, 5]\nrandom_boxes: {count: 1000000, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}", "random_boxes.count: expected an integer in [0, 10,000]"),
+    ("size: [5, 5]\nrandom_boxes: {count: 1000000, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}", "random_boxes.count: expected an integer in [0, 64]"),
+    ("size: [20, 20]\nrandom_circles: {count: 10000, radius: [0.05, 0.1]}", "random_circles.count: expected an integer in [0, 64]"),
+    ("size: [20, 20]\nmoving_circles: {count: 65, radius: [0.05, 0.1], speed: [0, 1]}", "moving_circles.count: expected an integer in [0, 64]"),
+    ("size: [20, 20]\nrandom_boxes: {count: 40, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}\nrandom_circles: {count: 40, radius: [0.05, 0.1]}",
+     "random_boxes.count + random_circles.count = 80; a map re-places at most 64"),
     ("size: [1.0e39, 1.0e39]", "size: at most 10000 m per side"),
     ("size: [50000, 5]", "size: at most 10000 m per side"),
     ("size: [5, 5]\nsize: [6, 6]", "size: duplicate key at line 2"),
@@ -414,3 +418,22 @@ def test_image_over_pillows_own_limit_is_named(tmp_path, monkeypatch, kind):
         (tmp_path / "t.yaml").write_text("image: big.png\nresolution: 0.01\n")
         with pytest.raises(TrackError, match=r"big\.png: more than the 16,777,216 pixels allowed"):
             load_track(tmp_path / "t.yaml")
+
+
+@pytest.mark.parametrize("objects", [
+    "random_circles: {count: 64, radius: [0.05, 0.1], clearance: 0.5, margin: 0.01}",
+    "random_boxes: {count: 32, size_x: [0.1, 0.2], size_y: [0.1, 0.2], clearance: 0.5}\nrandom_circles: {count: 32, radius: [0.05, 0.1], clearance: 0.5}\n"
+    "moving_circles: {count: 64, radius: [0.05, 0.1], speed: [0, 0.5], clearance: 0.5, margin: 0.01}",
+    "moving_boxes: {count: 64, size_x: [0.1, 0.2], size_y: [0.1, 0.2], speed: [0, 0.5], motion: pedestrian}",
+], ids=["circles", "boxes+circles+movers", "moving_boxes"])
+def test_every_count_at_its_maximum_builds_within_seconds(tmp_path, objects):
+    import time
+
+    from torchnav.envs import make_nav_env
+
+    path = tmp_path / "m.yaml"
+    path.write_text(f"size: [20, 20]\n{objects}\n")
+    t0 = time.perf_counter()
+    env = make_nav_env(str(path), num_envs=64)
+    env.rollout(3)
+    assert time.perf_counter() - t0 < 30, "the documented maximum must build and step within seconds"
