@@ -437,3 +437,20 @@ def test_every_count_at_its_maximum_builds_within_seconds(tmp_path, objects):
     env = make_nav_env(str(path), num_envs=64)
     env.rollout(3)
     assert time.perf_counter() - t0 < 30, "the documented maximum must build and step within seconds"
+
+
+@pytest.mark.parametrize("obstacles", ["circles:\n  - [0, 0, 5.0]",  # leaves only the four corners free
+                                       "boxes:\n  - {center: [0, 0], size: [7.8, 7.8]}"])  # leaves a thin ring
+def test_a_map_with_little_room_never_starts_in_collision(tmp_path, obstacles):
+    from torchnav.envs import make_nav_env
+    from torchnav.sim import points_clearance
+
+    path = tmp_path / "little_room.yaml"
+    path.write_text(f"size: [10, 10]\n{obstacles}\n")
+    env = make_nav_env(str(path), num_envs=512)
+    for seed in range(3):
+        env.set_seed(seed)
+        td = env.reset()
+        clear = points_clearance(td["pose"][:, None, :2], env.state.world)[:, 0]
+        assert (clear >= env.cfg.robot.radius + env.cfg.reset.start_clearance - 1e-4).all(), \
+            f"seed {seed}: {(clear < env.cfg.robot.radius).sum().item()} of 512 starts overlap an obstacle"
