@@ -454,3 +454,17 @@ def test_a_map_with_little_room_never_starts_in_collision(tmp_path, obstacles):
         clear = points_clearance(td["pose"][:, None, :2], env.state.world)[:, 0]
         assert (clear >= env.cfg.robot.radius + env.cfg.reset.start_clearance - 1e-4).all(), \
             f"seed {seed}: {(clear < env.cfg.robot.radius).sum().item()} of 512 starts overlap an obstacle"
+
+
+def test_map_distance_field_is_chunked_over_many_obstacles():
+    # check_room's grid against a map's fixed obstacles once held a (points, obstacles) table:
+    # 40,000 cells x 100,000 circles asked for 32 GB. Chunks give the same distances.
+    from torchnav.maps.free_space import obstacle_distance_arrays
+    from torchnav.sim import make_world, points_clearance
+
+    g = torch.Generator().manual_seed(0)
+    circles = torch.cat((torch.rand(5000, 2, generator=g, dtype=torch.float64) * 20 - 10, torch.full((5000, 1), 0.05, dtype=torch.float64)), 1)
+    xy = torch.rand(2000, 2, generator=g, dtype=torch.float64) * 20 - 10
+    got = obstacle_distance_arrays(xy.numpy(), circles=circles.numpy())
+    want = points_clearance(xy[None], make_world(1, circles=circles.numpy(), dtype=torch.float64))[0].numpy()
+    assert np.array_equal(got, want)

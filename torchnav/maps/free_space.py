@@ -37,7 +37,9 @@ def obstacle_distance_arrays(xy: np.ndarray, segments=(), circles=(), boxes=()) 
                        circles=np.asarray(circles, dtype=np.float64).reshape(-1, 3),
                        boxes=np.asarray(boxes, dtype=np.float64).reshape(-1, 5), dtype=torch.float64)
     pts = torch.as_tensor(np.asarray(xy, dtype=np.float64).reshape(1, -1, 2))
-    return points_clearance(pts, world)[0].numpy()
+    # points_clearance holds a (points, obstacles) table per kind: chunk the points to keep it small.
+    step = max(1, (1 << 22) // max(1, world.segments.shape[1], world.circles.shape[1], world.boxes.shape[1]))
+    return torch.cat([points_clearance(pts[:, i:i + step], world)[0] for i in range(0, pts.shape[1], step)]).numpy()
 
 
 def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
