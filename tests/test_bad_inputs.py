@@ -10,6 +10,7 @@ import importlib
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -92,6 +93,80 @@ def test_envs_refuse_wrong_action_shape_dtype_and_nan(kind):
     bad = TensorDict({"action": torch.full((4, 2), float("nan"))}, batch_size=[4])
     with pytest.raises(ValueError, match="NaN or inf in envs"):
         env.step(bad)
+
+
+BAD_ACTIONS = [  # for an 8-env continuous batch: (action, what the message must contain)
+    (torch.zeros(8), r"action has shape \(8,\), expected \(8, 2\)"),
+    (torch.zeros(8, 3), r"action has shape \(8, 3\)"),
+    (torch.zeros(8, 2, 1), r"action has shape \(8, 2, 1\)"),
+    (torch.zeros(8, 2, dtype=torch.int32), "floating-point tensor, got torch.int32"),
+    (torch.zeros(8, 2, dtype=torch.bool), "floating-point tensor, got torch.bool"),
+    (torch.zeros(8, 2, dtype=torch.complex64), "floating-point tensor, got torch.complex64"),
+    (torch.zeros(8, 2, device="meta"), "action is on device meta, expected the env's device cpu"),
+    (torch.full((8, 2), float("inf")), "NaN or inf in envs"),
+]
+
+
+@pytest.mark.parametrize("action,message", BAD_ACTIONS, ids=[m for _, m in BAD_ACTIONS])
+def test_env_step_names_every_bad_action(action, message):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_nav_env
+
+    env = make_nav_env("arena", num_envs=8)
+    env.reset()
+    with pytest.raises(ValueError, match=message):
+        env.step(TensorDict({"action": action}, batch_size=[8]))
+
+
+@pytest.mark.parametrize("batch", [[4], [1], [], [8, 1]])
+def test_env_step_names_a_batch_of_another_size(batch):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_nav_env
+
+    env = make_nav_env("arena", num_envs=8)
+    env.reset()
+    td = TensorDict({"action": torch.zeros(*batch, 2)}, batch_size=batch)
+    with pytest.raises(ValueError) as e:
+        env.step(td)
+    assert f"batch size {tuple(batch)}, expected (8,)" in str(e.value) and "an action is (8, 2)" in str(e.value)
+    with pytest.raises(ValueError, match=r"expected \(8,\)"):
+        env.reset(td)
+    env.step(TensorDict({"action": torch.zeros(8, 2)}, batch_size=[8]))  # still steps after the refusals
+
+
+GYM_BAD_ACTIONS = [  # (vector actions for 8 envs, single-env action, what the message must contain)
+    (np.zeros((4, 2)), np.zeros((1, 2)), "must have shape"),
+    (np.zeros((1, 2)), np.zeros(3), "must have shape"),
+    (np.zeros(8), np.zeros((2, 1)), "must have shape"),
+    (np.zeros((8, 2), dtype=bool), np.zeros(2, dtype=bool), "real numbers"),
+    (np.zeros((8, 2), dtype=complex), np.zeros(2, dtype=complex), "real numbers"),
+    (torch.zeros(8, 2, device="meta"), torch.zeros(2, device="meta"), "meta device"),
+    ("ab", "ab", "real numbers"),
+    (None, None, "real numbers"),
+    ([[0, 0], [0]], [0, [0]], "must be an array"),
+    (np.full((8, 2), np.nan), np.full(2, np.nan), "NaN or inf"),
+]
+
+
+@pytest.mark.parametrize("vector,single,message", GYM_BAD_ACTIONS, ids=[f"{i}-{m}" for i, (_, _, m) in enumerate(GYM_BAD_ACTIONS)])
+def test_gym_and_sb3_adapters_name_every_bad_action(vector, single, message):
+    from torchnav.gym import navigation_env, navigation_vector_env, sb3_vec_env
+
+    vec = navigation_vector_env(num_envs=8)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        vec.step(vector)
+    one = navigation_env()
+    one.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        one.step(single)
+    pytest.importorskip("stable_baselines3")
+    sb3 = sb3_vec_env(vec)
+    sb3.reset()
+    with pytest.raises(ValueError, match=message):
+        sb3.step(vector)
 
 
 # --------------------------------------------------------------------------- checkpoints
@@ -228,7 +303,11 @@ BAD_MAPS = [
     (ALIAS_BOMB, "expands to more than 2,000,000 values through its aliases"),
     ("size: [5, 5]\nl0: &l0 [1]\nwalls: [" + ", ".join(["*l0"] * 101) + "]", "more than 100 alias references"),
     ("size: " + "[" * 40 + "1" + "]" * 40, "nested deeper than 32 levels"),
-    ("size: [5, 5]\nrandom_boxes: {count: 1000000, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}", "random_boxes.count: expected an integer in [0, 10,000]"),
+    ("size: [5, 5]\nrandom_boxes: {count: 1000000, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}", "random_boxes.count: expected an integer in [0, 64]"),
+    ("size: [20, 20]\nrandom_circles: {count: 10000, radius: [0.05, 0.1]}", "random_circles.count: expected an integer in [0, 64]"),
+    ("size: [20, 20]\nmoving_circles: {count: 65, radius: [0.05, 0.1], speed: [0, 1]}", "moving_circles.count: expected an integer in [0, 64]"),
+    ("size: [20, 20]\nrandom_boxes: {count: 40, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}\nrandom_circles: {count: 40, radius: [0.05, 0.1]}",
+     "random_boxes.count + random_circles.count = 80; a map re-places at most 64"),
     ("size: [1.0e39, 1.0e39]", "size: at most 10000 m per side"),
     ("size: [50000, 5]", "size: at most 10000 m per side"),
     ("size: [5, 5]\nsize: [6, 6]", "size: duplicate key at line 2"),
@@ -283,3 +362,109 @@ def test_track_alias_bomb_is_refused(tmp_path):
     path.write_text(_alias_bomb("width: 0.02\n"))
     with pytest.raises(TrackError, match="expands to more than"):
         load_track(path)
+
+
+BAD_TRACKS = [  # (track file, what the message must contain): each refused before the curve is allocated
+    ("width: 0.02\nspacing: 1.0e-9\nlines:\n  - {points: [[0, 0], [1, 0], [1, 1]], closed: true}",
+     "spacing: a line 3.41421 m long at spacing 1e-09 m would need 3,414,213,562 points, more than the 1,000,000 allowed"),
+    ("width: 0.02\nspacing: 1.0e-300\nlines:\n  - {points: [[0, 0], [1, 0], [1, 1]], closed: true}", "spacing: a line"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e6, 0], [1.0e6, 1.0e6]], closed: true}", "spacing: a line"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e5, 0], [1.0e5, 1.0e5]], closed: true, corner_radius: 2.0e4}",
+     "lines[0].corner_radius: the fillets"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e4, 0], [1.0e4, 1.0e4]], closed: true, smooth: true}", "lines[0].points: the spline"),
+]
+
+
+@pytest.mark.parametrize("text,message", BAD_TRACKS, ids=[str(i) for i in range(len(BAD_TRACKS))])
+def test_track_resampling_is_bounded_up_front(tmp_path, text, message):
+    import time
+
+    from torchnav.tracks import load_track
+
+    path = tmp_path / "t.yaml"
+    path.write_text(text)
+    t0 = time.perf_counter()
+    with pytest.raises(TrackError) as e:
+        load_track(path)
+    assert message in str(e.value) and str(path) in str(e.value)
+    assert time.perf_counter() - t0 < 5
+
+
+def test_track_at_the_point_limit_builds(tmp_path):
+    from torchnav.tracks import load_track
+    from torchnav.tracks.geometry import MAX_CURVE_POINTS
+
+    side = MAX_CURVE_POINTS * 0.02 / 4 * 0.99  # a square lap just under the limit at the default spacing
+    path = tmp_path / "t.yaml"
+    path.write_text(f"width: 0.02\nlines:\n  - {{points: [[0, 0], [{side}, 0], [{side}, {side}], [0, {side}]], closed: true}}")
+    assert len(load_track(path).lap) <= MAX_CURVE_POINTS + 1
+
+
+@pytest.mark.parametrize("kind", ["map", "track"])
+def test_image_over_pillows_own_limit_is_named(tmp_path, monkeypatch, kind):
+    from PIL import Image
+
+    from torchnav.maps import load_map
+    from torchnav.tracks import load_track
+
+    Image.new("L", (300, 300), 255).save(tmp_path / "big.png")
+    # Pillow refuses images over twice its MAX_IMAGE_PIXELS inside open(); lower it so a small file trips it.
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100 * 100)
+    if kind == "map":
+        (tmp_path / "m.yaml").write_text("size: [10, 10]\noccupancy: {image: big.png, resolution: 0.01}\n")
+        with pytest.raises(MapError, match=r"big\.png: more than the 16,777,216 pixels allowed"):
+            load_map(tmp_path / "m.yaml")
+    else:
+        (tmp_path / "t.yaml").write_text("image: big.png\nresolution: 0.01\n")
+        with pytest.raises(TrackError, match=r"big\.png: more than the 16,777,216 pixels allowed"):
+            load_track(tmp_path / "t.yaml")
+
+
+@pytest.mark.parametrize("objects", [
+    "random_circles: {count: 64, radius: [0.05, 0.1], clearance: 0.5, margin: 0.01}",
+    "random_boxes: {count: 32, size_x: [0.1, 0.2], size_y: [0.1, 0.2], clearance: 0.5}\nrandom_circles: {count: 32, radius: [0.05, 0.1], clearance: 0.5}\n"
+    "moving_circles: {count: 64, radius: [0.05, 0.1], speed: [0, 0.5], clearance: 0.5, margin: 0.01}",
+    "moving_boxes: {count: 64, size_x: [0.1, 0.2], size_y: [0.1, 0.2], speed: [0, 0.5], motion: pedestrian}",
+], ids=["circles", "boxes+circles+movers", "moving_boxes"])
+def test_every_count_at_its_maximum_builds_within_seconds(tmp_path, objects):
+    import time
+
+    from torchnav.envs import make_nav_env
+
+    path = tmp_path / "m.yaml"
+    path.write_text(f"size: [20, 20]\n{objects}\n")
+    t0 = time.perf_counter()
+    env = make_nav_env(str(path), num_envs=64)
+    env.rollout(3)
+    assert time.perf_counter() - t0 < 30, "the documented maximum must build and step within seconds"
+
+
+@pytest.mark.parametrize("obstacles", ["circles:\n  - [0, 0, 5.0]",  # leaves only the four corners free
+                                       "boxes:\n  - {center: [0, 0], size: [7.8, 7.8]}"])  # leaves a thin ring
+def test_a_map_with_little_room_never_starts_in_collision(tmp_path, obstacles):
+    from torchnav.envs import make_nav_env
+    from torchnav.sim import points_clearance
+
+    path = tmp_path / "little_room.yaml"
+    path.write_text(f"size: [10, 10]\n{obstacles}\n")
+    env = make_nav_env(str(path), num_envs=512)
+    for seed in range(3):
+        env.set_seed(seed)
+        td = env.reset()
+        clear = points_clearance(td["pose"][:, None, :2], env.state.world)[:, 0]
+        assert (clear >= env.cfg.robot.radius + env.cfg.reset.start_clearance - 1e-4).all(), \
+            f"seed {seed}: {(clear < env.cfg.robot.radius).sum().item()} of 512 starts overlap an obstacle"
+
+
+def test_map_distance_field_is_chunked_over_many_obstacles():
+    # check_room's grid against a map's fixed obstacles once held a (points, obstacles) table:
+    # 40,000 cells x 100,000 circles asked for 32 GB. Chunks give the same distances.
+    from torchnav.maps.free_space import obstacle_distance_arrays
+    from torchnav.sim import make_world, points_clearance
+
+    g = torch.Generator().manual_seed(0)
+    circles = torch.cat((torch.rand(5000, 2, generator=g, dtype=torch.float64) * 20 - 10, torch.full((5000, 1), 0.05, dtype=torch.float64)), 1)
+    xy = torch.rand(2000, 2, generator=g, dtype=torch.float64) * 20 - 10
+    got = obstacle_distance_arrays(xy.numpy(), circles=circles.numpy())
+    want = points_clearance(xy[None], make_world(1, circles=circles.numpy(), dtype=torch.float64))[0].numpy()
+    assert np.array_equal(got, want)

@@ -91,21 +91,33 @@ def _advance(env: NavEnv | LineEnv, td: TensorDict | None, action: torch.Tensor)
     return env.step(td.clone(False).set("action", action))["next"]
 
 
-def _action_tensor(env: NavEnv | LineEnv, space: spaces.Space, actions: Any) -> torch.Tensor:
+def _action_tensor(env: NavEnv | LineEnv, space: spaces.Space, actions: Any, single: bool = False) -> torch.Tensor:
     """Gymnasium actions for ``env.num_envs`` envs (indices into a ``Discrete`` ``space``, or ``(B, 2)``
-    values) as the TorchRL env's action; a ValueError names a wrong shape or value."""
-    a = torch.as_tensor(np.asarray(actions), device=env.device)
-    b = env.num_envs
-    if isinstance(space, spaces.Discrete):
-        if a.shape != (b,):
-            raise ValueError(f"actions must have shape ({b},) (one index per env), got {tuple(a.shape)}")
+    values; with ``single`` one index or ``(2,)`` values) as the TorchRL env's action; a ValueError
+    names a wrong type, shape, dtype or value before anything is converted."""
+    b, discrete = env.num_envs, isinstance(space, spaces.Discrete)
+    want = (() if discrete else (2,)) if single else ((b,) if discrete else (b, 2))
+    what = "one index" if discrete else "two values in [-1, 1]"
+    if isinstance(actions, torch.Tensor):
+        if actions.device.type == "meta":
+            raise ValueError(f"actions are on the meta device (no values); pass {what} per env as a NumPy array or CPU tensor")
+        actions = actions.detach().cpu()
+    try:
+        a = np.asarray(actions)
+    except (TypeError, ValueError) as e:  # ragged lists
+        raise ValueError(f"actions must be an array of shape {want} ({what} per env), got {type(actions).__name__} ({e})") from None
+    # Real numbers only: bool, complex, strings and objects have no meaning as commands.
+    if a.dtype.kind not in ("i", "u") + (() if discrete else ("f",)):
+        raise ValueError(f"actions must be {'integers' if discrete else 'real numbers'} ({what} per env), got dtype {a.dtype}")
+    if a.shape != want:
+        raise ValueError(f"actions must have shape {want} ({what} per env), got {a.shape}")
+    t = torch.as_tensor(a, device=env.device)
+    if discrete:
         n = space.n
-        if a.dtype.is_floating_point or (a < 0).any() or (a >= n).any():
+        if (t < 0).any() or (t >= n).any():
             raise ValueError(f"discrete actions must be integers in [0, {n}), got {actions!r}")
-        return torch.nn.functional.one_hot(a.long(), n).to(env.action_spec.dtype)
-    if a.shape != (b, 2):
-        raise ValueError(f"actions must have shape ({b}, 2) (two values in [-1, 1] per env), got {tuple(a.shape)}")
-    return a.to(torch.float32)
+        return torch.nn.functional.one_hot(t.long().reshape(b), n).to(env.action_spec.dtype)
+    return t.to(torch.float32).reshape(b, 2)
 
 
 def _observations(td: TensorDict) -> np.ndarray:
@@ -192,9 +204,7 @@ class TorchnavEnv(gymnasium.Env):
         return _observations(self._td)[0], {k: bool(v[0]) for k, v in _flags(self.env, self._td).items()}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        a = np.asarray(action)
-        a = a[None] if isinstance(self.action_space, spaces.Discrete) else a.reshape(1, -1)
-        nxt = self._td = _advance(self.env, self._td, _action_tensor(self.env, self.action_space, a))
+        nxt = self._td = _advance(self.env, self._td, _action_tensor(self.env, self.action_space, action, single=True))
         terminated, truncated = bool(nxt["terminated"].item()), bool(nxt["truncated"].item())
         info: dict[str, Any] = {k: bool(v[0]) for k, v in _flags(self.env, nxt).items()}
         if terminated or truncated:

@@ -67,10 +67,24 @@ class BatchedEnv(EnvBase):
         self.reward_spec = Unbounded(shape=(*b, 1), device=dev)
         self.done_spec = Composite(done=self._flag_spec(), terminated=self._flag_spec(), truncated=self._flag_spec(), shape=b, device=dev)
 
+    def _assert_tensordict_shape(self, tensordict: TensorDictBase) -> None:
+        # TorchRL's ``step`` and ``reset`` call this before anything else; its own check raises a
+        # bare RuntimeError, and a TensorDict of another batch size is almost always an action of
+        # another batch size (``TensorDict({"action": a}, batch_size=a.shape[:1])``).
+        if tensordict.batch_size != self.batch_size:
+            raise ValueError(f"{type(self).__name__}: the input TensorDict has batch size {tuple(tensordict.batch_size)}, expected "
+                             f"{tuple(self.batch_size)} (one row per env; an action is {tuple(self.action_spec.shape)})")
+
     def _checked_action(self, tensordict) -> torch.Tensor:
-        """The ``"action"``, of the action spec's shape (else a ValueError naming both shapes); with
-        ``cfg.check_actions`` a NaN or inf raises naming the envs (one host sync)."""
-        action = tensordict.get("action")
+        """The ``"action"``: a tensor on the env's device of the action spec's shape, floating point
+        when continuous (else a ValueError naming what is allowed); with ``cfg.check_actions`` a NaN
+        or inf raises naming the envs (one host sync)."""
+        action = tensordict.get("action", None)
+        if not isinstance(action, torch.Tensor):
+            raise ValueError(f"{type(self).__name__}.step: the input needs an \"action\" tensor of shape {tuple(self.action_spec.shape)}, "
+                             f"got {type(action).__name__}")
+        if action.device != self.device:
+            raise ValueError(f"{type(self).__name__}.step: action is on device {action.device}, expected the env's device {self.device}")
         if action.shape != self.action_spec.shape:
             raise ValueError(f"{type(self).__name__}.step: action has shape {tuple(action.shape)}, expected {tuple(self.action_spec.shape)} "
                              f"({self.action_spec.shape[-1]} values per env for {self.num_envs} envs)")

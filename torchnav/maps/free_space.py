@@ -37,7 +37,9 @@ def obstacle_distance_arrays(xy: np.ndarray, segments=(), circles=(), boxes=()) 
                        circles=np.asarray(circles, dtype=np.float64).reshape(-1, 3),
                        boxes=np.asarray(boxes, dtype=np.float64).reshape(-1, 5), dtype=torch.float64)
     pts = torch.as_tensor(np.asarray(xy, dtype=np.float64).reshape(1, -1, 2))
-    return points_clearance(pts, world)[0].numpy()
+    # points_clearance holds a (points, obstacles) table per kind: chunk the points to keep it small.
+    step = max(1, (1 << 22) // max(1, world.segments.shape[1], world.circles.shape[1], world.boxes.shape[1]))
+    return torch.cat([points_clearance(pts[:, i:i + step], world)[0] for i in range(0, pts.shape[1], step)]).numpy()
 
 
 def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -56,12 +58,25 @@ def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> t
     return (d > robot_radius) & (edge > robot_radius), xs, ys
 
 
+def _room_resolution(spec: MapSpec) -> float:
+    return max(0.05, max(spec.size) / 200)  # a grid of at most about 200 x 200 cells
+
+
+@functools.lru_cache(maxsize=64)
+def free_points(spec: MapSpec, need: float) -> np.ndarray:
+    """Centres ``(F, 2)`` (m) of the cells of :func:`check_room`'s grid that lie more than ``need`` m
+    from every fixed obstacle and the world's edge: collision-free places for a disc of radius ``need``."""
+    free, xs, ys = free_grid(spec, need, _room_resolution(spec))
+    j, i = np.nonzero(free)
+    return np.stack((xs[i], ys[j]), -1)
+
+
 @functools.lru_cache(maxsize=64)
 def check_room(spec: MapSpec, robot_need: float, goal_need: float) -> None:
     """Raise a MapError unless some place lies ``robot_need`` m from every fixed obstacle and the
     world's edge (a start for the robot's disc) and some place ``goal_need`` m from every fixed
     obstacle (a goal). Sampled on a grid of at most about 200 x 200 cells."""
-    res = max(0.05, max(spec.size) / 200)
+    res = _room_resolution(spec)
     for need, what in ((robot_need, "a start (robot radius + reset.start_clearance)"), (goal_need, "a goal (reset.goal_clearance)")):
         if not free_grid(spec, need, res)[0].any():
             raise MapError(f"{spec.source}: no room for {what}: no place is {need:g} m from every fixed obstacle and the "

@@ -25,7 +25,11 @@ from .spec import MOTIONS, MapError, MapSpec, RandomBoxes, RandomCircles, Random
 # Obstacles may touch the world edge; allow for decimal round-off in the file.
 _TOL = 1e-6
 MAX_SIZE = 10_000.0  # m per side
-MAX_RANDOM = 10_000  # random boxes or circles re-placed per reset
+# Random boxes and circles (and, separately, movers) re-placed per reset. The reset places them one
+# after another, each tested against all placed before it over every env and candidate: the work
+# grows with the square of the count, so 64 keeps a 64-env reset within seconds where 10,000
+# would run for hours.
+MAX_RANDOM = 64
 MAX_FIXED = 100_000  # fixed obstacles of one map (walls, polygon edges, circles, boxes)
 
 
@@ -280,6 +284,11 @@ def parse_map(
     for k in ("walls", "polygons", "circles", "boxes"):
         if isinstance(d.get(k), list) and len(d[k]) > MAX_FIXED:
             raise ctx.fail(k, f"{len(d[k]):,} entries; a map holds at most {MAX_FIXED:,} of a kind")
+    counts = [d[k].get("count") for k in ("random_boxes", "random_circles") if isinstance(d.get(k), dict)]
+    if len(counts) == 2 and all(isinstance(c, int) and not isinstance(c, bool) for c in counts) and sum(counts) > MAX_RANDOM:
+        # Both kinds are placed in one sequence, so the bound is on their sum.
+        raise ctx.fail("random_circles.count", f"random_boxes.count + random_circles.count = {sum(counts)}; a map re-places at most {MAX_RANDOM} "
+                       "random objects per reset")
     circles, circle_styles = _circles(ctx, d["circles"], size) if "circles" in d else ((), ())
     boxes, box_styles = _boxes(ctx, d["boxes"], size) if "boxes" in d else ((), ())
     return MapSpec(

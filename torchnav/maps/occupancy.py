@@ -34,6 +34,8 @@ def read_mask(path: str | os.PathLike, threshold: float = 0.5, invert: bool = Fa
             if im.width * im.height > MAX_PIXELS:
                 raise ImageError(f"{path}: {im.width} x {im.height} pixels is more than the {MAX_PIXELS:,} allowed; downscale the image")
             grey = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
+    except Image.DecompressionBombError as e:  # Pillow's own, larger, limit refuses it inside open()
+        raise ImageError(f"{path}: more than the {MAX_PIXELS:,} pixels allowed ({e}); downscale the image") from None
     except FileNotFoundError:
         raise ImageError(f"{path}: image file not found") from None
     except (OSError, UnidentifiedImageError) as e:

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from ..maps import MapSpec
+from ..maps.free_space import free_points
 from ..maps.spec import RandomCircles, RandomMovers
 from ..sim import World, pad_world, points_clearance
 from ..sim.movers import BOX_FIELDS, PATROL, PEDESTRIAN, Movers
@@ -73,8 +74,10 @@ def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: t
     and from the world's edge, with a uniform random heading; with ``avoid`` ``(n, J, 2)``, also at
     least ``avoid_need`` m from each of those points (the other robots' starts: multi_navigation.py).
 
-    Fallback: the candidate with the largest clearance. Also returns whether a
-    valid candidate was found ``(n,)``.
+    Fallback: the free cell of ``spec``'s room grid (``maps.free_space.free_points``) nearest the
+    candidate with the largest clearance, which the world's fixed obstacles leave free when
+    ``world`` holds only ``spec``'s fixed obstacles. Also returns whether a valid candidate was
+    found ``(n,)``.
     """
     n = world.batch_size[0]
     like = world.segments
@@ -83,8 +86,16 @@ def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: t
     xy = torch.stack((uniform(xmin + m, xmax - m, (n, k), generator, like), uniform(ymin + m, ymax - m, (n, k), generator, like)), -1)
     clear = _away(xy, _clearance(xy, world), need, avoid, avoid_need)
     idx, found = _pick(clear >= need, clear)
+    pos = _gather(xy, idx)
+    if not bool(found.all()):
+        # On a map with little room all candidates of an env can miss it, and the clearest of them
+        # may overlap an obstacle: start there instead at the free cell of the map's room grid
+        # nearest to it (drawing nothing, so every other env's episode is unchanged).
+        free = torch.as_tensor(free_points(spec, need), dtype=pos.dtype, device=pos.device)
+        if len(free):
+            pos = torch.where(found[:, None], pos, free[torch.cdist(pos, free).argmin(1)])
     heading = uniform(-math.pi, math.pi, (n,), generator, like)
-    return torch.cat((_gather(xy, idx), heading[:, None]), dim=-1), found
+    return torch.cat((pos, heading[:, None]), dim=-1), found
 
 
 def sample_goals(

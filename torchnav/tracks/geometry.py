@@ -17,6 +17,13 @@ import torch
 from torch import Tensor
 
 ARC_STEP = 0.002  # m, chord length used to sample arcs and splines before resampling
+MAX_CURVE_POINTS = 1_000_000  # points of one dense or resampled line (2 km of arcs, 20 km of line at the default spacing)
+
+
+def _check_count(n: float, what: str) -> None:
+    """Refuse a curve of more than :data:`MAX_CURVE_POINTS` points before allocating it."""
+    if not n <= MAX_CURVE_POINTS:
+        raise CurveError(f"{what} would need {n:,.0f} points, more than the {MAX_CURVE_POINTS:,} allowed per line")
 
 
 class CurveError(ValueError):
@@ -39,6 +46,7 @@ def fillet_polyline(points: np.ndarray, radii: np.ndarray, closed: bool) -> np.n
     dirs = edges / lengths[:, None]
     corners = range(n) if closed else range(1, n - 1)
     fillets: dict[int, tuple[float, np.ndarray]] = {}
+    total = 0
     for i in corners:
         r = float(radii[i])
         a, b = dirs[i - 1], dirs[i % len(dirs)]
@@ -51,7 +59,10 @@ def fillet_polyline(points: np.ndarray, radii: np.ndarray, closed: bool) -> np.n
         start = points[i] - a * t
         normal = np.array((-a[1], a[0])) * (1.0 if turn > 0 else -1.0)
         centre = start + r * normal
-        k = max(2, int(math.ceil(r * abs(turn) / ARC_STEP)) + 1)
+        arc = r * abs(turn)
+        total += arc / ARC_STEP
+        _check_count(total, f"the fillets (corner_radius, sampled every {ARC_STEP} m) up to point {i}")
+        k = max(2, int(math.ceil(arc / ARC_STEP)) + 1)
         phi0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
         phi = phi0 + np.linspace(0.0, turn, k)
         fillets[i] = (t, centre + r * np.stack((np.cos(phi), np.sin(phi)), axis=1))
@@ -78,6 +89,7 @@ def catmull_rom(points: np.ndarray, closed: bool) -> np.ndarray:
         ext = np.concatenate((p[-1:], p, p[:2]))
     else:
         ext = np.concatenate((2 * p[:1] - p[1:2], p, 2 * p[-1:] - p[-2:-1]))
+    _check_count(float(np.linalg.norm(np.diff(ext[1:-1], axis=0), axis=1).sum()) / ARC_STEP, f"the spline (sampled every {ARC_STEP} m)")
     out = []
     for j in range(len(ext) - 3):
         p0, p1, p2, p3 = ext[j:j + 4]
@@ -107,6 +119,7 @@ def resample(dense: np.ndarray, spacing: float, closed: bool) -> np.ndarray:
     s = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))))
     if s[-1] <= 0:
         raise CurveError("the line has zero length")
+    _check_count(s[-1] / spacing, f"a line {s[-1]:.6g} m long at spacing {spacing:g} m")
     n = max(1, int(math.ceil(s[-1] / spacing - 1e-9)))
     q = np.linspace(0.0, s[-1], n + 1)
     out = np.stack((np.interp(q, s, pts[:, 0]), np.interp(q, s, pts[:, 1])), axis=1)

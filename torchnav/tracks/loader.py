@@ -46,7 +46,8 @@ def _curve(ctx: Ctx, v: dict, key: str, spacing: float, force_closed: bool = Fal
         dense = catmull_rom(pts, closed) if smooth else fillet_polyline(pts, radii, closed)
         return resample(dense, spacing, closed), closed
     except CurveError as e:
-        raise ctx.fail(f"{key}.corner_radius" if "radi" in str(e) else f"{key}.points", str(e)) from None
+        msg = str(e)
+        raise ctx.fail("spacing" if "spacing" in msg else f"{key}.corner_radius" if "radi" in msg else f"{key}.points", msg) from None
 
 
 def _walls(ctx: Ctx, v: Any) -> np.ndarray:

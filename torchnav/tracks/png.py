@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import resample
+from .geometry import CurveError, resample
 from .track import Track, TrackError
 
 
@@ -119,7 +119,10 @@ def track_from_mask(
         k = 5  # circular moving average over 5 pixels removes the staircase
         xy = sum(np.roll(xy, s, axis=0) for s in range(-(k // 2), k // 2 + 1)) / k
         area = 0.5 * float(np.sum(xy[:, 0] * np.roll(xy[:, 1], -1) - np.roll(xy[:, 0], -1) * xy[:, 1]))
-        lap = resample(xy if area > 0 else xy[::-1], spacing, closed=True)
+        try:
+            lap = resample(xy if area > 0 else xy[::-1], spacing, closed=True)
+        except CurveError as e:
+            raise TrackError(f"{source}: spacing: the traced lap: {e}") from None
     return Track(
         name=name, width=float(width), segments=segments, lines=(), lap=lap,
         walls=np.zeros((0, 4)) if walls is None else walls, spacing=spacing, source=source, description=description,
