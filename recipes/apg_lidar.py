@@ -32,9 +32,10 @@ to the reward the actor and critic see, its weight ramped in over
 on, the first updates learned to stand still). Exploration is Gaussian noise before the
 ``tanh`` (reparameterised, so it does not block the gradient). ``torchnav.apg`` holds the
 horizon's rollout, its loss, the TD(lambda) targets and the smoothed terms. The saved
-``actor.pt`` is ``tanh`` of the policy network, like PPO's. Every config key:
-recipes/configs/apg_lidar.yaml and docs/training.md; docs/training.md#analytic-policy-gradients-apg
-describes what is differentiated and where it fails.
+``actor.pt`` is ``tanh`` of the policy network, like PPO's. Every config key, its default and
+its documentation: torchnav/train_config.py (recipes/configs/apg_lidar.yaml holds what this recipe
+changes); docs/training.md#analytic-policy-gradients-apg describes what is differentiated and
+where it fails.
 """
 
 from __future__ import annotations

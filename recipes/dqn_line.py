@@ -10,7 +10,8 @@ observations, MLP) -> ``DQNLoss`` (double DQN, soft target updates) -> epsilon-
 greedy collector -> the loop (replay updates as TD3's and SAC's) -> the final evaluation.
 The saved ``actor.pt`` holds the Q-network and the action table of (left, right)
 commands, so ``python -m torchnav.export`` writes C that returns wheel commands.
-Every config key: recipes/configs/dqn_line.yaml and docs/training.md.
+Every config key, its default and its documentation: torchnav/train_config.py;
+recipes/configs/dqn_line.yaml holds what this recipe changes.
 """
 
 from __future__ import annotations

@@ -14,7 +14,8 @@ not (``local``, IPPO). ``GAE`` and ``ClipPPOLoss`` read the per-robot reward, do
 (``loss.set_keys``), so each robot has its own advantages; a robot parked at its goal or after a
 collision is done from then on (reward 0, no bootstrap) until its env resets. The saved actor.pt is
 the shared network's mean action, run per robot (``torchnav.policy.load_policy``; task ``multi_nav``).
-Every config key: recipes/configs/mappo_nav.yaml and docs/training.md.
+Every config key, its default and its documentation: torchnav/train_config.py;
+recipes/configs/mappo_nav.yaml holds what this recipe changes.
 """
 
 from __future__ import annotations

@@ -11,7 +11,8 @@ collector -> the loop (advantages over the whole batch, then `epochs` passes of 
 minibatches) -> the final evaluation. With ``train.recurrent: gru`` the policy is a
 ``RecurrentActor`` (MLP -> GRU cell -> head; the value network stays feed-forward) whose state
 each env carries through collection, and minibatches are whole per-env sequences. Every config
-key: recipes/configs/ppo_lidar.yaml and docs/training.md.
+key, its default and its documentation: torchnav/train_config.py; recipes/configs/ppo_lidar.yaml
+holds what this recipe changes.
 """
 
 from __future__ import annotations

@@ -6,7 +6,8 @@
 
 The same PPO as ``ppo_lidar.py`` (tanh Gaussian, observation normalisation, GAE,
 ``ClipPPOLoss``) on ``torchnav.envs.LineEnv``; evaluation counts full laps from
-random starts. Every config key is documented in recipes/configs/ppo_line.yaml.
+random starts. Every config key, its default and its documentation: torchnav/train_config.py;
+recipes/configs/ppo_line.yaml holds what this recipe changes.
 The saved ``actor.pt`` exports to ONNX and C: ``python -m torchnav.export``.
 """
 

@@ -7,8 +7,8 @@
 Reads top to bottom: the run (``builders.setup``) -> a tanh-squashed Gaussian actor with
 state-dependent scale, twin Q-networks -> ``SACLoss`` with a learned temperature -> replay buffer
 and collector -> the loop (store the batch; `updates_per_batch` gradient steps on sampled
-minibatches, soft target updates) -> the final evaluation. Every config key: recipes/configs/sac_lidar.yaml
-and docs/training.md.
+minibatches, soft target updates) -> the final evaluation. Every config key, its default and its documentation: torchnav/train_config.py;
+recipes/configs/sac_lidar.yaml holds what this recipe changes.
 """
 
 from __future__ import annotations

@@ -10,7 +10,8 @@ noise) -> the loop: store each batch, then per gradient step the critics towards
 double-Q target with target-policy smoothing, and every `policy_delay` steps the actor and a soft
 update of the targets -> the final evaluation. The update is plain PyTorch, as in CleanRL's TD3:
 at this network size TorchRL's ``TD3Loss`` spends most of a gradient step in bookkeeping
-(docs/performance.md). Every config key: recipes/configs/td3_lidar.yaml and docs/training.md.
+(docs/performance.md). Every config key, its default and its documentation: torchnav/train_config.py;
+recipes/configs/td3_lidar.yaml holds what this recipe changes.
 """
 
 from __future__ import annotations
