@@ -30,6 +30,7 @@ class TaskProtocol:
     env_class: type = BatchedEnv
     outcome_keys: tuple[str, ...] = ()  # flags of finished training episodes behind the train/<flag>_rate figures
     outcomes: tuple[str, ...] = ()  # evaluation outcomes shown on one line; the first one's rate is the score
+    records = True  # whether record() writes MCAP episodes of the task
 
     def __init__(self, config: Any, eval_config: Any = None, **env_options: Any) -> None:
         self.config, self.env_options = config, env_options
@@ -172,6 +173,7 @@ class MultiNavProtocol(TaskProtocol):
     name, place, config_class, env_class = "multi_nav", "map", MultiNavConfig, MultiNavEnv
     outcome_keys = ("team_success",)  # top-level flags of a finished env's episode
     outcomes = ("team_success", "at_goal", "robot_collision", "collision", "timeout")
+    records = False  # recording several robots is not implemented
 
     def __init__(self, config: MultiNavConfig) -> None:
         from .maps import load_map

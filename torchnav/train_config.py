@@ -93,11 +93,6 @@ class LineEvalConfig(EvalConfig):
 
 
 @dataclass(frozen=True)
-class MultiNavEvalConfig(EvalConfig):
-    record_episodes: int = count(0, 0)  # must stay 0: recording several robots is not implemented
-
-
-@dataclass(frozen=True)
 class LoggerConfig(Config):
     backend: str = one_of(*LOGGER_BACKENDS, default="csv")  # TorchRL loggers (extras [tensorboard], [wandb]), written to <run>/logs
     root: str = "runs"  # parent of run directories
@@ -214,14 +209,9 @@ class PPOTrain(Train):
 class MAPPOTrain(PPOTrain):
     """``train`` of ``mappo_nav``: PPO with one policy and one value network shared by every robot.
     Frames are env steps (each steps ``robots.n`` robots); a minibatch is ``minibatch_size`` env
-    steps with all their robots. ``recurrent`` must stay off."""
+    steps with all their robots. ``recurrent`` must stay off. Its other defaults are PPOTrain's
+    (recipes/configs/mappo_nav.yaml sets what the recipe changes)."""
 
-    total_frames: int = count(1, 1_048_576)  # env steps over all envs (128 batches of 256 envs x 32 steps)
-    frames_per_batch: int = count(1, 8192)  # env steps per PPO iteration (a multiple of env.num_envs)
-    epochs: int = count(1, 4)  # passes over each batch
-    minibatch_size: int = count(1, 2048)  # env steps (all their robots) per gradient step (at most frames_per_batch)
-    lr: float = positive(3e-4)  # Adam learning rate (policy, log-std and value network together)
-    hidden: tuple[int, ...] = sizes((128, 128))  # MLP hidden sizes of the policy and value networks
     # central: MAPPO, the value network sees every robot slot's observation (TorchRL MultiAgentMLP,
     # centralised); local: IPPO, each robot's value from its own observation; parameters shared either way
     critic: str = one_of("central", "local", default="central")
@@ -353,7 +343,6 @@ class APGLidar(NavRecipe):
 @dataclass(frozen=True)
 class MultiNavRecipe(Recipe):
     task: MultiNavConfig
-    eval: MultiNavEvalConfig
 
 
 @dataclass(frozen=True)
@@ -362,8 +351,7 @@ class MAPPONav(MultiNavRecipe):
 
     def checks(self) -> list[tuple[bool, str]]:
         return super().checks() + [
-            (self.train.recurrent == "off", f"train.recurrent={self.train.recurrent!r}: mappo_nav has no recurrent policy (use off)"),
-            (self.eval.record_episodes == 0, f"eval.record_episodes={self.eval.record_episodes}: recording several robots is not implemented (use 0)")]
+            (self.train.recurrent == "off", f"train.recurrent={self.train.recurrent!r}: mappo_nav has no recurrent policy (use off)")]
 
 
 @dataclass(frozen=True)
