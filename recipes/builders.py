@@ -335,10 +335,7 @@ def observation_stats(env, steps: int, key: Any = "observation") -> tuple[torch.
     env.load_state_dict(before)
     obs = td[key].reshape(-1, td[key].shape[-1]).double()
     loc, scale = obs.mean(0).float(), obs.std(0).clamp(min=1e-2).float()
-    unit = getattr(env.task, "unit_features", None)  # the multi-robot task marks none
-    if unit is None:
-        return loc, scale
-    unit = unit.to(loc.device)
+    unit = env.task.unit_features.to(loc.device)
     return loc.masked_fill(unit, 0.0), scale.masked_fill(unit, 1.0)
 
 

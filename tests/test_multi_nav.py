@@ -55,7 +55,7 @@ def test_counts_per_env_and_absent_robots():
 
 
 def test_neighbour_features_are_permutation_invariant_and_padded():
-    task, s, _ = make(n=4, neighbours=5)
+    task, s, _ = make(n=4, neighbours=5, neighbour_range=100.0)
     f = task.observe(s.sim, s.goal, s.present)
     perm = torch.tensor([2, 0, 3, 1])
     ps = s[:]
@@ -138,3 +138,14 @@ def test_goal_curriculum_bounds_random_goals_and_grows_per_robot():
     swap, _, g2 = make(n=3, num_envs=2, scenario="circle_swap", curriculum={"init_radius": 1.0})
     start = CurriculumState.initial(swap.cfg.curriculum)
     assert int(swap.initial_state(start, g2)[1].placements) == 0  # its goals are not drawn from the curriculum
+
+
+def test_robots_beyond_the_neighbour_range_are_not_observed():
+    task, s, _ = make(n=3, num_envs=2, neighbours=2, neighbour_range=1.0)
+    s.sim.robots.pose[0, :, :2] = torch.tensor([[0.0, 0.0], [0.8, 0.0], [0.0, 1.5]])  # robot 1 in range of 0, robot 2 not
+    neigh = task.observe(s.sim, s.goal, s.present)[0, 0, task.nav.obs_size:].reshape(2, 5)
+    assert neigh[0, 4] == 1 and neigh[1].eq(0).all()
+    torch.testing.assert_close(neigh[0, :2].norm(), torch.tensor(0.8 / 1.0))  # position in neighbour ranges (normalize on)
+    # the neighbour block keeps its scale through observation statistics: empty slots stay 0
+    unit = task.unit_features
+    assert unit.shape == (task.obs_size,) and unit[task.nav.obs_size:].all() and not unit[: task.nav.obs_size].any()

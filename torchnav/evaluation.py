@@ -120,7 +120,7 @@ def eval_config(cfg: NavConfig, map: str | None = None, anywhere: bool = True,
         if w["families"]:
             over["worlds"] = {"curriculum": False, "difficulty": w["max_difficulty"] if w["curriculum"] else w["difficulty"],
                               **(plain if worlds is None else {})}
-    return NavConfig.from_dict(merge(d, over))
+    return type(cfg).from_dict(merge(d, over))  # a MultiNavConfig stays one
 
 
 Outcome = Callable[[TensorDictBase], "tuple[torch.Tensor, dict[str, torch.Tensor]]"]

@@ -164,22 +164,28 @@ class LineProtocol(TaskProtocol):
 
 class MultiNavProtocol(TaskProtocol):
     """Several robots per env (``MultiNavEnv``): evaluation plays ``episodes`` envs of the training
-    config (its scenario, robot count and curriculum start) to their first episode's end with one
+    config (its scenario and robot count) to their first episode's end with one
     deterministic policy for every robot. The summary's rates: ``team_success`` (envs whose every
     present robot reached its goal), ``at_goal`` (present robots at their goal), ``robot_collision``
     (present robots that hit another robot), ``collision`` (present robots that hit anything),
-    ``timeout`` (envs truncated at ``max_steps``); ``robots``: the present robots counted."""
+    ``timeout`` (envs truncated at ``max_steps``); ``robots``: the present robots counted. Goals are
+    drawn anywhere (the curriculum off) unless ``anywhere=False``."""
 
     name, place, config_class, env_class = "multi_nav", "map", MultiNavConfig, MultiNavEnv
     outcome_keys = ("team_success",)  # top-level flags of a finished env's episode
     outcomes = ("team_success", "at_goal", "robot_collision", "collision", "timeout")
     records = False  # recording several robots is not implemented
 
-    def __init__(self, config: MultiNavConfig) -> None:
-        from .maps import load_map
+    def __init__(self, config: MultiNavConfig, anywhere: bool = True, map: str | None = None) -> None:
+        """As ``NavProtocol``: ``anywhere`` turns the goal curriculum off for evaluation (the
+        ``random`` scenario's goals anywhere on the map; the other scenarios place theirs by their
+        geometry), ``map`` evaluates on another map."""
+        evaluation = eval_config(config, map=map, anywhere=anywhere)
+        if not evaluation.worlds.families:
+            from .maps import load_map
 
-        load_map(config.map)  # an unknown or malformed map is named now, before any run starts
-        super().__init__(config)
+            load_map(evaluation.map)  # an unknown or malformed map is named now, before any run starts
+        super().__init__(config, evaluation)
 
     def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
         """``policy``: a TensorDict module reading ``"observation"`` ``(..., D)`` and writing ``"action"``

@@ -80,7 +80,7 @@ class BatchedTask:
 
     @property
     def unit_features(self) -> torch.Tensor:
-        """Mask ``(obs_size,)`` of the observation's features that are already in [0, 1) and whose
+        """Mask ``(obs_size,)`` of the observation's features that are already scaled (or zero where absent) and whose
         spread under random actions says nothing of a policy's: normalisation statistics must
         leave these as they are. None here; a task with such features overrides this."""
         return torch.zeros(self.obs_size, dtype=torch.bool, device=self.device)

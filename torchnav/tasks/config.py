@@ -308,7 +308,8 @@ class RobotsConfig(Config):
     min_n: int = count(0, 0)  # > 0: each reset draws an env's robot count uniformly in [min_n, n] (the others are absent); 0: always n
     scenario: str = one_of(*SCENARIOS, default="random")  # "random" starts and goals, "circle_swap" (goals at the antipodes), "crossing" (two groups swap sides)
     on_collision: str = one_of(*ON_COLLISION, default="robot")  # a collision parks that "robot" (an obstacle from then on), or ends the "team"'s episode
-    neighbours: int = count(0, 4)  # k nearest other robots in each robot's observation (5 values each, padded with a 0 flag)
+    neighbours: int = count(0, 3)  # k nearest other robots in range in each robot's observation (5 values each, padded with a 0 flag); 3: a 4-robot team fills every slot
+    neighbour_range: float = positive(3.0)  # m, other robots farther than this are not observed (their slots padded)
     separation: float = non_negative(0.2)  # m, free gap between two robots' discs at the start, and between goals beyond 2 * goal_tolerance
     circle_radius: float = non_negative(0.0)  # m, circle_swap's circle; 0: 0.4 of the map's smaller side
 

@@ -88,11 +88,20 @@ class MultiNavTask:
 
     # -- observation ----------------------------------------------------------------
 
+    @property
+    def unit_features(self) -> Tensor:
+        """NavTask's, then every neighbour feature: they are zero where a slot is empty, and a
+        mean-std normalisation from a rollout with one robot count would turn the empty slots of
+        another count into large inputs (the flag's spread is 0 when every slot is always full)."""
+        return torch.cat((self.nav.unit_features, torch.ones(NEIGHBOUR_FEATURES * self.k, dtype=torch.bool, device=self.device)))
+
     def neighbours(self, sim: RobotsState, present: Tensor) -> Tensor:
-        """``(B, N, 5k)``: for each robot its ``k`` nearest other present robots, nearest first, as
-        ``[x, y, vx, vy, 1]`` (position m and velocity m/s relative to it, in its frame; scaled by the
-        lidar's max range and v_max with ``observation.normalize``), zeros where fewer exist. Sorted by
-        distance, so the same robots in another slot order give the same features."""
+        """``(B, N, 5k)``: for each robot its ``k`` nearest other present robots within
+        ``robots.neighbour_range``, nearest first, as ``[x, y, vx, vy, 1]`` (position m and velocity m/s
+        relative to it, in its frame; divided by the neighbour range and v_max with
+        ``observation.normalize``), zeros where fewer are in range. Sorted by distance, so the same robots
+        in another slot order give the same features; padded by range, so a policy meets empty slots
+        in training whatever its robot count, and runs with fewer or more robots."""
         b, n = present.shape
         if self.k == 0:
             return sim.robots.pose.new_zeros(b, n, 0)
@@ -109,12 +118,14 @@ class MultiNavTask:
 
         px, py = frame(x, y)
         qx, qy = frame(vx, vy)
-        seen = present[:, other] & present[..., None]  # (B, N, N - 1)
-        dist = torch.where(seen, safe_hypot(px, py), torch.inf)
+        reach = self.cfg.robots.neighbour_range
+        dist = safe_hypot(px, py)
+        seen = present[:, other] & present[..., None] & (dist <= reach)  # (B, N, N - 1)
+        dist = torch.where(seen, dist, torch.inf)
         feats = torch.stack((px, py, qx, qy, seen.to(pose.dtype)), -1)
         if self.cfg.observation.normalize:
             r = self.cfg.robot
-            feats = feats * feats.new_tensor([1 / self.cfg.lidar.max_range] * 2 + [1 / max(r.v_max, 1e-9)] * 2 + [1.0])
+            feats = feats * feats.new_tensor([1 / reach] * 2 + [1 / max(r.v_max, 1e-9)] * 2 + [1.0])
         feats = torch.where(seen[..., None], feats, 0.0)
         order = dist.argsort(dim=-1, stable=True)[..., : self.k]
         feats = feats.gather(2, order[..., None].expand(*order.shape, NEIGHBOUR_FEATURES))
