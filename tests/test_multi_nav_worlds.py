@@ -172,11 +172,48 @@ def test_env_on_worlds_passes_specs_resets_from_its_pool_and_restores_its_state(
     torch.testing.assert_close(twin.curriculum.difficulty, env.curriculum.difficulty)
 
 
+MOVING_MAP = """
+name: moving
+size: [10.0, 10.0]
+walls: boundary
+random_boxes: {count: 3, size_x: [0.4, 0.6], size_y: [0.3, 0.5], clearance: 1.0, margin: 0.1}
+moving_circles: {count: 4, radius: [0.2, 0.3], speed: [0.2, 0.5], motion: pedestrian, clearance: 0.5, margin: 0.1}
+"""
+
+
+def mover_gaps(s, radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Least gap (m) of each env's placed movers' discs to its robots' discs at the start, and to its goals."""
+    m, mask = s.sim.movers, s.sim.mover_mask
+    def gap(xy):  # (B, N, 2) -> (B,)
+        d = (xy[:, :, None] - m[:, None, :, :2]).norm(dim=-1) - m[:, None, :, 4]
+        return torch.where(mask[:, None], d, math.inf).flatten(1).amin(1)
+    return gap(s.start[..., :2]) - radius, gap(s.goal)
+
+
+@pytest.mark.parametrize("where", ["map", "worlds"])
+def test_movers_keep_clear_of_every_robots_start_and_goal_and_move(where, tmp_path):
+    cfg_map = tmp_path / "moving.yaml"
+    cfg_map.write_text(MOVING_MAP)
+    movers = {"count": 3, "radius": [0.2, 0.3], "speed": [0.2, 0.5], "clearance": 0.5, "margin": 0.1}
+    if where == "map":
+        cfg = MultiNavConfig.from_dict({"map": str(cfg_map), "robots": {"n": 6}, "max_steps": 20})
+    else:
+        cfg = cfg_of(6, movers=movers)
+    task, s, _, g = initial(cfg, 4)
+    m, mask = s.sim.movers, s.sim.mover_mask
+    assert m.shape[:2] == (4, 4 if where == "map" else 3) and mask.any()
+    start_gap, goal_gap = mover_gaps(s, task.cfg.robot.radius)
+    rc = task.cfg.reset
+    assert (start_gap >= rc.start_clearance - 1e-5).all() and (goal_gap >= rc.goal_clearance - 1e-5).all()
+    assert not s.sim.robots.collided.any()
+    s2, _ = task.step(s, -torch.ones(4, 6, 2), g)  # the robots stand still, the movers walk
+    moved = (s2.sim.movers[..., :2] - m[..., :2]).norm(dim=-1)
+    assert (moved[mask] > 0).all()
+
+
 def test_refused_combinations_name_the_problem():
     with pytest.raises(ConfigError, match="circle_swap"):
         MultiNavTask(cfg_of(4, "circle_swap"), 2)
-    with pytest.raises(ConfigError, match="worlds.movers"):
-        MultiNavTask(cfg_of(4, movers={"count": 2, "radius": [0.2, 0.3], "speed": [0.2, 0.5]}), 2)
     with pytest.raises(ConfigError, match="geodesic"):
         MultiNavTask(MultiNavConfig.from_dict({"robots": {"n": 2}, "worlds": {"families": FAMILIES},
                                                "reward": {"progress_distance": "geodesic"}}), 2)

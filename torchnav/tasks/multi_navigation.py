@@ -12,9 +12,12 @@ as ``NavTask`` does (``NavTask._generated``: the same generator, families, diffi
 and places the robots with ``torchnav.worlds.place_robots``: each robot's goal reachable from its own
 start by its disc, as NavTask's one goal is. Resets then draw from an episode pool, as NavTask's do.
 
-What this version leaves out (refused with a clear error): ``circle_swap`` on procedural worlds, moving
-obstacles (a map's or ``worlds.movers``), domain randomisation, observation history and visit memory,
-the speed guard and the geodesic progress reward. ``crossing`` and ``circle_swap`` place their goals by
+Moving obstacles (a map's, or ``worlds.movers``) are placed as ``NavTask`` places them
+(``NavTask._movers``), clear of every robot's start and goal.
+
+What this version leaves out (refused with a clear error): ``circle_swap`` on procedural worlds,
+domain randomisation, observation history and visit memory, the speed guard and the geodesic
+progress reward. ``crossing`` and ``circle_swap`` place their goals by
 their geometry; in ``random`` on a map the goal-radius curriculum (``curriculum``) bounds every robot's
 goal distance, one curriculum for all robots: each placed goal is a placement and each robot's finished
 episode an episode of it (``CurriculumState``, as for ``NavTask``). The world difficulty curriculum
@@ -79,7 +82,6 @@ class MultiNavTask:
         unsupported = [
             (bool(cfg.worlds.families) and cfg.robots.scenario == "circle_swap",
              "robots.scenario: circle_swap on procedural worlds (worlds.families; its circle would cross their walls)"),
-            (bool(cfg.worlds.movers), "worlds.movers (moving obstacles)"),
             (bool(cfg.randomize.ranges()), "randomize (domain randomisation)"),
             (cfg.observation.history != 1, "observation.history > 1"),
             (cfg.observation.visit_sectors > 0, "observation.visit_sectors"),
@@ -90,8 +92,6 @@ class MultiNavTask:
         if bad:
             raise ConfigError(f"the multi-robot task does not support {', '.join(bad)} yet")
         self.nav = NavTask(cfg, num_envs, device, dtype)  # observation, actions, reward weights, the map or the worlds
-        if self.nav.spec is not None and self.nav.spec.movers is not None:
-            raise ConfigError(f"map {cfg.map!r}: the multi-robot task does not place movers yet; use a map without moving obstacles")
         self.families = self.nav.families
         rob = cfg.robots
         # On worlds as on maps: starts 2 radii plus the separation apart, goals 2 tolerances plus it.
@@ -190,7 +190,7 @@ class MultiNavTask:
     def _fresh(self, idx: Tensor, cur: CurriculumState, generator: torch.Generator) -> MultiNavState:
         m = idx.shape[0]
         if self.families:  # the world, its family and difficulty, and every robot's start and reachable goal
-            world, start, goal, family, difficulty, _, _ = self.nav._generated(m, cur, generator, self.placement)
+            world, start, goal, family, difficulty, bounds, _ = self.nav._generated(m, cur, generator, self.placement)
             counts = self._counts(m, generator)
         else:
             world = self.nav.base_world[idx]
@@ -199,11 +199,14 @@ class MultiNavTask:
                 world = place_random_objects(world, self.nav.spec, nowhere, nowhere, self.cfg.reset.candidates, generator)
             counts = self._counts(m, generator)
             start, goal = self._places(world, cur.radius, generator)
+            bounds = None
             family = torch.zeros(m, dtype=torch.int64, device=self.device)
             difficulty = torch.zeros(m, dtype=self.dtype, device=self.device)
         present = torch.arange(self.n, device=self.device) < counts[:, None]
         robots = Robots(present, torch.zeros_like(present))
-        sim = init_robots(start, world, self.nav.params, robots)
+        # Moving obstacles (the map's, or worlds.movers) keep the maps' clearances from every robot's start and goal.
+        movers = self.nav._movers(world, start[..., :2], goal, bounds, generator)
+        sim = init_robots(start, world, self.nav.params, robots, movers=movers)
         dist = torch.where(present, safe_hypot(goal[..., 0] - start[..., 0], goal[..., 1] - start[..., 1]), 0.0)
         zeros = torch.zeros(m, self.n, dtype=self.dtype, device=self.device)
         return MultiNavState(

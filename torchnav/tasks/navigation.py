@@ -19,6 +19,7 @@ from ..maps.free_space import check_room
 from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
 from ..sim.geometry import points_clearance
 from ..sim.kinematics import forward_speed_guard, guard_bearings
+from ..sim.movers import Movers
 from ..sim.randomize import max_delay
 from ..worlds import RobotPlacement, mix_worlds, slot_counts
 from ..worlds.guide import GUIDE_CELLS, goal_distance
@@ -171,12 +172,7 @@ class NavTask(BatchedTask):
         else:  # no goal grids (reward.progress_distance: euclidean): (n, 0, 0)
             goal_field = torch.zeros(n, self.guide_cells, self.guide_cells, dtype=torch.int16, device=self.device)
             goal_frame = torch.zeros(n, 3, dtype=self.dtype, device=self.device)
-        movers = None
-        if self.n_movers:
-            # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
-            where = self.spec if not self.families else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
-            movers = place_movers(world, where, start[:, :2], goal, rc.candidates, generator,
-                                  start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
+        movers = self._movers(world, start[:, :2], goal, bounds if self.families else None, generator)
         if self.randomized:
             env_params = sample_env_params(self.randomized, self.params, n, generator, start)
         else:
@@ -195,6 +191,18 @@ class NavTask(BatchedTask):
             straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params,
             crumbs=crumbs, crumb_count=crumb_count, **self._episode_start(sim, obs),
         )
+
+    def _movers(self, world: World, start_xy: Tensor, goal: Tensor, bounds: Tensor | None, generator: torch.Generator) -> Movers | None:
+        """This episode's moving obstacles (None without): the map's, or ``worlds.movers`` inside each
+        procedural world's ``bounds`` ``(n, 4)``, kept clear of the starts ``start_xy`` and goals ``goal``
+        (``(n, 2)``, or ``(n, J, 2)`` for several robots)."""
+        if not self.n_movers:
+            return None
+        rc = self.cfg.reset
+        # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
+        where = self.spec if bounds is None else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
+        return place_movers(world, where, start_xy, goal, rc.candidates, generator,
+                            start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
 
     def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator, robots: RobotPlacement | None = None,
                    ) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
