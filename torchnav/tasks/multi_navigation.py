@@ -37,10 +37,10 @@ from torch import Tensor
 from ..config import ConfigError
 from ..sim import World, safe_hypot, wrap_angle
 from ..sim.robots import Robots, RobotsState, init_robots, robot_clearance, step_robots
-from ..worlds.layout import uniform
-from .config import MultiNavConfig
 from ..worlds import RobotPlacement
+from ..worlds.layout import uniform
 from .base import EpisodePool
+from .config import MultiNavConfig
 from .curriculum import CurriculumState, after_episodes, after_family_episodes, after_placements
 from .navigation import NavTask
 from .rewards import reward_terms
@@ -211,7 +211,8 @@ class MultiNavTask:
         zeros = torch.zeros(m, self.n, dtype=self.dtype, device=self.device)
         return MultiNavState(
             sim=sim, world=world, goal=goal, start=start, present=present, arrived=torch.zeros_like(present), crashed=torch.zeros_like(present),
-            goal_dist=dist, family=family, difficulty=difficulty, steps=torch.zeros(m, dtype=torch.int64, device=self.device), ep_return=zeros,
+            goal_dist=dist, family=family, difficulty=difficulty, steps=torch.zeros(m, dtype=torch.int64, device=self.device),
+            ep_return=zeros,
             ep_terms=zeros[..., None].expand(m, self.n, len(self.term_names)).clone(), observation=self.observe(sim, goal, present),
             batch_size=[m], device=self.device,
         )
@@ -300,8 +301,8 @@ class MultiNavTask:
         obs = self.observe(sim, state.goal, state.present)
         new = MultiNavState(
             sim=sim, world=state.world, goal=state.goal, start=state.start, present=state.present, arrived=arrived, crashed=crashed,
-            goal_dist=torch.where(active, dist, state.goal_dist), family=state.family, difficulty=state.difficulty, steps=steps, ep_return=state.ep_return + reward,
-            ep_terms=state.ep_terms + stacked, observation=obs, batch_size=state.batch_size, device=state.device,
+            goal_dist=torch.where(active, dist, state.goal_dist), family=state.family, difficulty=state.difficulty, steps=steps,
+            ep_return=state.ep_return + reward, ep_terms=state.ep_terms + stacked, observation=obs, batch_size=state.batch_size, device=state.device,
         )
         out = {"observation": obs, "reward": reward, "terms": terms, "terminated": terminated, "truncated": truncated, "success": success,
                "collision": collision, "robot_collision": robot_collision, "team_terminated": team_terminated,

@@ -147,9 +147,9 @@ def place_random_objects(
     Each object keeps ``max(clearance, start_need)`` m from the start point ``start_xy`` ``(n, 2)``
     (or from each of ``(n, J, 2)``: several robots), ``max(clearance, goal_need)`` m from the goal
     ``goal_xy`` (likewise) and ``margin`` m from every fixed obstacle, wall and object placed
-    before it (tested on its circumscribed
-    circle, so the guarantee is conservative). ``start_need``/``goal_need`` are
-    the task's own clearances, which a map's smaller ``clearance`` must not undo.
+    before it (tested on its circumscribed circle, so the guarantee is conservative).
+    ``start_need``/``goal_need`` are the task's own clearances, which a map's smaller
+    ``clearance`` must not undo.
     Fallback: an object with no valid candidate is left out of this episode (its
     slot is masked off).
     """
