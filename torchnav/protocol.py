@@ -241,10 +241,17 @@ class MultiNavProtocol(TaskProtocol):
     def record_with(self, *args: Any, **kwargs: Any) -> Any:
         raise NotImplementedError("recording several robots is not implemented yet")
 
+    def where(self) -> str:
+        return NavProtocol.where(self) if self.config.worlds.families else super().where()
+
     def status(self, env) -> str:
+        if self.config.worlds.families:  # the world difficulties, as for one robot
+            return NavProtocol.status(self, env)
         return f"radius {env.curriculum.radius.item():.2f}m" if self.config.robots.scenario == "random" else ""
 
     def scalars(self, env) -> dict[str, float]:
+        if self.config.worlds.families:
+            return NavProtocol.scalars(self, env)
         return {"curriculum/radius": env.curriculum.radius.item()} if self.config.robots.scenario == "random" else {}
 
 

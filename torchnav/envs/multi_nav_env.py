@@ -18,7 +18,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 
-from ..tasks import CurriculumState, MultiNavConfig, MultiNavState, MultiNavTask
+from ..tasks import CurriculumState, EpisodePool, MultiNavConfig, MultiNavState, MultiNavTask
 from .base import BatchedEnv
 
 AGENT_FLAGS = ("success", "collision", "robot_collision")
@@ -31,11 +31,12 @@ class MultiNavEnv(BatchedEnv):
 
     def __init__(self, cfg: MultiNavConfig | None = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0):
         super().__init__(cfg, num_envs, device, seed)
+        self.pool = EpisodePool()  # where partial resets take their episodes from when the task is pooled; new at every full reset
         self.restart_curriculum()
 
     def restart_curriculum(self) -> None:
-        """Put the goal-radius curriculum back to its initial state (``random`` scenario only)."""
-        self.curriculum = CurriculumState.initial(self.cfg.curriculum, device=self.device)
+        """Put the curricula back to their initial state (the goal radius of ``random``, the world difficulties)."""
+        self.curriculum = CurriculumState.initial(self.cfg.curriculum, device=self.device, worlds=self.cfg.worlds)
 
     @property
     def n_robots(self) -> int:
@@ -71,9 +72,10 @@ class MultiNavEnv(BatchedEnv):
 
     def _new_state(self, mask: torch.Tensor | None) -> MultiNavState:
         if mask is None:
+            self.pool = EpisodePool()
             state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
         else:
-            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator)
+            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator, self.pool)
         return state
 
     def _reset_view(self, s: MultiNavState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -134,15 +136,16 @@ class MultiNavEnv(BatchedEnv):
         }, batch_size=ab, device=self.device)
         return TensorDict({"agents": agents, "episode_length": s.steps.to(s.ep_return.dtype)[:, None]}, batch_size=b, device=self.device)
 
-    extra_state_keys = ("curriculum", "generator")
+    extra_state_keys = ("curriculum", "generator", "pool")
 
     def get_extra_state(self) -> dict[str, Any]:
-        """Curriculum, generator and episodes in flight: ``env.state_dict()["_extra_state"]``."""
-        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state()}
+        """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""
+        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": self.pool.state_dict()}
 
     def set_extra_state(self, state: dict[str, Any]) -> None:
-        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum
+        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum and the pool
         self.curriculum.load_state_dict(state["curriculum"])
+        self.pool.load_state_dict(state["pool"], self.state_from_dict)
 
     def advance(self, action: torch.Tensor):
         raise NotImplementedError("MultiNavEnv has no differentiable rollout yet: step it through TorchRL's step")

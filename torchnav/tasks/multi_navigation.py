@@ -7,12 +7,22 @@ hit; the map's random objects are placed first (anywhere, except in ``circle_swa
 they could block: none there), then the robots and goals around them. With ``robots.on_collision: team`` a collision ends the whole env's episode instead. The env's
 episode ends when no present robot still drives, or at ``max_steps`` (truncation).
 
-What this first version leaves out (refused with a clear error): procedural worlds, maps with random
-movers, domain randomisation, observation history and visit memory, the speed guard and
-the geodesic progress reward. ``crossing`` and ``circle_swap`` place their goals by their geometry;
-in ``random`` the goal-radius curriculum (``curriculum``) bounds every robot's goal distance, one
-curriculum for all robots: each placed goal is a placement and each robot's finished episode an
-episode of it (``CurriculumState``, as for ``NavTask``).
+With procedural worlds (``worlds.families``; ``random`` and ``crossing``) every episode draws its world
+as ``NavTask`` does (``NavTask._generated``: the same generator, families, difficulties and curriculum)
+and places the robots with ``torchnav.worlds.place_robots``: each robot's goal reachable from its own
+start by its disc, as NavTask's one goal is. Resets then draw from an episode pool, as NavTask's do.
+
+Moving obstacles (a map's, or ``worlds.movers``) are placed as ``NavTask`` places them
+(``NavTask._movers``), clear of every robot's start and goal.
+
+What this version leaves out (refused with a clear error): ``circle_swap`` on procedural worlds,
+domain randomisation, observation history and visit memory, the speed guard and the geodesic
+progress reward. ``crossing`` and ``circle_swap`` place their goals by
+their geometry; in ``random`` on a map the goal-radius curriculum (``curriculum``) bounds every robot's
+goal distance, one curriculum for all robots: each placed goal is a placement and each robot's finished
+episode an episode of it (``CurriculumState``, as for ``NavTask``). The world difficulty curriculum
+(``worlds.curriculum``) is likewise one for the batch, each robot's finished episode counting as one
+episode of its env's world family.
 """
 
 from __future__ import annotations
@@ -27,9 +37,11 @@ from torch import Tensor
 from ..config import ConfigError
 from ..sim import World, safe_hypot, wrap_angle
 from ..sim.robots import Robots, RobotsState, init_robots, robot_clearance, step_robots
+from ..worlds import RobotPlacement
 from ..worlds.layout import uniform
+from .base import EpisodePool
 from .config import MultiNavConfig
-from .curriculum import CurriculumState, after_episodes, after_placements
+from .curriculum import CurriculumState, after_episodes, after_family_episodes, after_placements
 from .navigation import NavTask
 from .rewards import reward_terms
 from .sampling import place_random_objects, sample_goals, sample_starts
@@ -49,6 +61,8 @@ class MultiNavState:
     arrived: Tensor  # (B, N) bool, reached its goal (parked there)
     crashed: Tensor  # (B, N) bool, collided (parked there)
     goal_dist: Tensor  # (B, N) m after the last step
+    family: Tensor  # (B,) int64 index of the env's world family in cfg.worlds.families (0 on a map)
+    difficulty: Tensor  # (B,) the difficulty the env's world was generated at (0 on a map)
     steps: Tensor  # (B,) int64
     ep_return: Tensor  # (B, N) running sum of each robot's reward
     ep_terms: Tensor  # (B, N, T) running sums of each weighted term
@@ -66,7 +80,8 @@ class MultiNavTask:
         if not isinstance(cfg, MultiNavConfig):
             raise TypeError(f"MultiNavTask needs a MultiNavConfig, got {type(cfg).__name__}")
         unsupported = [
-            (bool(cfg.worlds.families), "worlds.families (procedural worlds)"),
+            (bool(cfg.worlds.families) and cfg.robots.scenario == "circle_swap",
+             "robots.scenario: circle_swap on procedural worlds (worlds.families; its circle would cross their walls)"),
             (bool(cfg.randomize.ranges()), "randomize (domain randomisation)"),
             (cfg.observation.history != 1, "observation.history > 1"),
             (cfg.observation.visit_sectors > 0, "observation.visit_sectors"),
@@ -76,10 +91,12 @@ class MultiNavTask:
         bad = [what for on, what in unsupported if on]
         if bad:
             raise ConfigError(f"the multi-robot task does not support {', '.join(bad)} yet")
-        self.nav = NavTask(cfg, num_envs, device, dtype)  # observation, actions, reward weights, map and its world
-        spec = self.nav.spec
-        if spec.movers is not None:
-            raise ConfigError(f"map {cfg.map!r}: the multi-robot task does not place movers yet; use a map without moving obstacles")
+        self.nav = NavTask(cfg, num_envs, device, dtype)  # observation, actions, reward weights, the map or the worlds
+        self.families = self.nav.families
+        rob = cfg.robots
+        # On worlds as on maps: starts 2 radii plus the separation apart, goals 2 tolerances plus it.
+        self.placement = RobotPlacement(rob.n, 2 * self.nav.max_radius + rob.separation, 2 * cfg.goal_tolerance + rob.separation,
+                                        sides=rob.scenario == "crossing")
         self.cfg, self.num_envs, self.device, self.dtype = cfg, num_envs, self.nav.device, dtype
         self.n = cfg.robots.n
         self.k = cfg.robots.neighbours
@@ -183,33 +200,57 @@ class MultiNavTask:
 
     def _fresh(self, idx: Tensor, cur: CurriculumState, generator: torch.Generator) -> MultiNavState:
         m = idx.shape[0]
-        world = self.nav.base_world[idx]
-        if self.cfg.robots.scenario != "circle_swap":
-            nowhere = world.segments.new_full((m, 2), -1.0e6)  # no start or goal to keep clear of yet: the robots come after
-            world = place_random_objects(world, self.nav.spec, nowhere, nowhere, self.cfg.reset.candidates, generator)
-        counts = self._counts(m, generator)
-        start, goal = self._places(world, cur.radius, generator)
+        if self.families:  # the world, its family and difficulty, and every robot's start and reachable goal
+            world, start, goal, family, difficulty, bounds, _ = self.nav._generated(m, cur, generator, self.placement)
+            counts = self._counts(m, generator)
+        else:
+            world = self.nav.base_world[idx]
+            if self.cfg.robots.scenario != "circle_swap":
+                nowhere = world.segments.new_full((m, 2), -1.0e6)  # no start or goal to keep clear of yet: the robots come after
+                world = place_random_objects(world, self.nav.spec, nowhere, nowhere, self.cfg.reset.candidates, generator)
+            counts = self._counts(m, generator)
+            start, goal = self._places(world, cur.radius, generator)
+            bounds = None
+            family = torch.zeros(m, dtype=torch.int64, device=self.device)
+            difficulty = torch.zeros(m, dtype=self.dtype, device=self.device)
         present = torch.arange(self.n, device=self.device) < counts[:, None]
         robots = Robots(present, torch.zeros_like(present))
-        sim = init_robots(start, world, self.nav.params, robots)
+        # Moving obstacles (the map's, or worlds.movers) keep the maps' clearances from every robot's start and goal.
+        movers = self.nav._movers(world, start[..., :2], goal, bounds, generator)
+        sim = init_robots(start, world, self.nav.params, robots, movers=movers)
         dist = torch.where(present, safe_hypot(goal[..., 0] - start[..., 0], goal[..., 1] - start[..., 1]), 0.0)
         zeros = torch.zeros(m, self.n, dtype=self.dtype, device=self.device)
         return MultiNavState(
             sim=sim, world=world, goal=goal, start=start, present=present, arrived=torch.zeros_like(present), crashed=torch.zeros_like(present),
-            goal_dist=dist, steps=torch.zeros(m, dtype=torch.int64, device=self.device), ep_return=zeros,
+            goal_dist=dist, family=family, difficulty=difficulty, steps=torch.zeros(m, dtype=torch.int64, device=self.device),
+            ep_return=zeros,
             ep_terms=zeros[..., None].expand(m, self.n, len(self.term_names)).clone(), observation=self.observe(sim, goal, present),
             batch_size=[m], device=self.device,
         )
 
+    @property
+    def pooled(self) -> bool:
+        """Whether partial resets draw from an :class:`EpisodePool` (as ``NavTask.pooled``: ``reset.pool > 0``
+        or procedural worlds)."""
+        return self.nav.pooled
+
     def initial_state(self, cur: CurriculumState, generator: torch.Generator) -> tuple[MultiNavState, CurriculumState]:
-        """New episodes in every env, and the curriculum after their goals."""
+        """New episodes in every env (sampled afresh: start a new :class:`EpisodePool` with them), and the
+        curriculum after their goals."""
         state = self._fresh(torch.arange(self.num_envs, device=self.device), cur, generator)
         return state, self._placed(cur, state.present)
 
-    def reset(self, state: MultiNavState, mask: Tensor, cur: CurriculumState, generator: torch.Generator) -> tuple[MultiNavState, CurriculumState]:
+    def reset(self, state: MultiNavState, mask: Tensor, cur: CurriculumState, generator: torch.Generator,
+              pool: EpisodePool | None = None) -> tuple[MultiNavState, CurriculumState]:
         """New episodes where ``mask`` ``(B,)`` is True (the other envs are left bit-identical), and the
-        curriculum after their goals."""
-        new, n = NavTask.replace_where(state, mask, lambda idx: self._fresh(idx, cur, generator))
+        curriculum after their goals; when the task is :attr:`pooled`, taken from ``pool`` (required
+        then, the same one every time), as ``NavTask.reset`` does."""
+        if self.pooled and pool is None:
+            raise ValueError("MultiNavTask.reset: this task draws its resets from an episode pool (reset.pool > 0 or worlds.families): "
+                             "pass pool=EpisodePool() and the same pool to every later reset")
+        fresh = lambda idx: self._fresh(idx, cur, generator)  # noqa: E731
+        draw = (lambda idx: self.nav._from_pool(pool, idx.numel(), cur, generator, fresh)) if self.pooled else fresh
+        new, n = NavTask.replace_where(state, mask, draw)
         return new, (self._placed(cur, new.present & mask.reshape(-1, 1)) if n else cur)
 
     def _placed(self, cur: CurriculumState, placed: Tensor) -> CurriculumState:
@@ -220,12 +261,17 @@ class MultiNavTask:
 
     def after_step(self, cur: CurriculumState, before: MultiNavState, out: dict[str, Tensor]) -> CurriculumState:
         """The curriculum after a step from ``before`` with outputs ``out``: every robot whose episode
-        ended in it (parked, or its env's ended) is one finished episode, a success if it arrived."""
-        if self.cfg.robots.scenario != "random":
-            return cur
+        ended in it (parked, or its env's ended) is one finished episode, a success if it arrived: of
+        the goal radius (``random``) and of its env's world family (``worlds.curriculum``, any scenario)."""
         robots = before.robots
         finished = (out["terminated"] | out["truncated"]) & robots.present & ~robots.parked
-        return after_episodes(cur, self.cfg.curriculum, finished, out["success"])
+        if self.cfg.robots.scenario == "random":
+            cur = after_episodes(cur, self.cfg.curriculum, finished, out["success"])
+        if self.families:
+            per_robot = lambda t: t[:, None].expand_as(finished).reshape(-1)  # noqa: E731
+            cur = after_family_episodes(cur, self.cfg.worlds, finished.reshape(-1), out["success"].reshape(-1),
+                                        per_robot(before.family), per_robot(before.difficulty))
+        return cur
 
     # -- step -------------------------------------------------------------------------
 
@@ -266,8 +312,8 @@ class MultiNavTask:
         obs = self.observe(sim, state.goal, state.present)
         new = MultiNavState(
             sim=sim, world=state.world, goal=state.goal, start=state.start, present=state.present, arrived=arrived, crashed=crashed,
-            goal_dist=torch.where(active, dist, state.goal_dist), steps=steps, ep_return=state.ep_return + reward,
-            ep_terms=state.ep_terms + stacked, observation=obs, batch_size=state.batch_size, device=state.device,
+            goal_dist=torch.where(active, dist, state.goal_dist), family=state.family, difficulty=state.difficulty, steps=steps,
+            ep_return=state.ep_return + reward, ep_terms=state.ep_terms + stacked, observation=obs, batch_size=state.batch_size, device=state.device,
         )
         out = {"observation": obs, "reward": reward, "terms": terms, "terminated": terminated, "truncated": truncated, "success": success,
                "collision": collision, "robot_collision": robot_collision, "team_terminated": team_terminated,

@@ -8,6 +8,7 @@ simulator is possible: ``state, out = task.step(state, action)``.
 from __future__ import annotations
 
 import math
+from typing import Any, Callable
 
 import torch
 from tensordict import tensorclass
@@ -18,8 +19,9 @@ from ..maps.free_space import check_room
 from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
 from ..sim.geometry import points_clearance
 from ..sim.kinematics import forward_speed_guard, guard_bearings
+from ..sim.movers import Movers
 from ..sim.randomize import max_delay
-from ..worlds import mix_worlds, slot_counts
+from ..worlds import RobotPlacement, mix_worlds, slot_counts
 from ..worlds.guide import GUIDE_CELLS, goal_distance
 from ..sim import step as sim_step
 from .base import BatchedTask, EpisodePool, TaskState
@@ -170,12 +172,7 @@ class NavTask(BatchedTask):
         else:  # no goal grids (reward.progress_distance: euclidean): (n, 0, 0)
             goal_field = torch.zeros(n, self.guide_cells, self.guide_cells, dtype=torch.int16, device=self.device)
             goal_frame = torch.zeros(n, 3, dtype=self.dtype, device=self.device)
-        movers = None
-        if self.n_movers:
-            # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
-            where = self.spec if not self.families else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
-            movers = place_movers(world, where, start[:, :2], goal, rc.candidates, generator,
-                                  start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
+        movers = self._movers(world, start[:, :2], goal, bounds if self.families else None, generator)
         if self.randomized:
             env_params = sample_env_params(self.randomized, self.params, n, generator, start)
         else:
@@ -195,14 +192,28 @@ class NavTask(BatchedTask):
             crumbs=crumbs, crumb_count=crumb_count, **self._episode_start(sim, obs),
         )
 
-    def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
+    def _movers(self, world: World, start_xy: Tensor, goal: Tensor, bounds: Tensor | None, generator: torch.Generator) -> Movers | None:
+        """This episode's moving obstacles (None without): the map's, or ``worlds.movers`` inside each
+        procedural world's ``bounds`` ``(n, 4)``, kept clear of the starts ``start_xy`` and goals ``goal``
+        (``(n, 2)``, or ``(n, J, 2)`` for several robots)."""
+        if not self.n_movers:
+            return None
+        rc = self.cfg.reset
+        # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
+        where = self.spec if bounds is None else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
+        return place_movers(world, where, start_xy, goal, rc.candidates, generator,
+                            start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
+
+    def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator, robots: RobotPlacement | None = None,
+                   ) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
         """``n`` procedural episodes: padded worlds, starts ``(n, 3)``, goals ``(n, 2)``, family
         indices ``(n,)``, difficulties ``(n,)``, bounds ``(n, 4)`` and, with the geodesic progress
-        reward, each goal's distance grid and its frame; each family at its curriculum difficulty."""
+        reward, each goal's distance grid and its frame; each family at its curriculum difficulty.
+        With ``robots`` (the multi-robot task), starts ``(n, N, 3)`` and goals ``(n, N, 2)`` of its robots."""
         levels = {f: cur.difficulty[i] for i, f in enumerate(self.families)}
         batch = mix_worlds(n, dict(zip(self.families, self._family_weights.tolist())), levels, generator, self.device, self.dtype, robot_radius=self.cfg.robot.radius,
                            anywhere_goals=self.cfg.worlds.anywhere_goals, below_level=self.cfg.worlds.below_level, guide_cells=self.guide_cells,
-                           guide_margin=self.cfg.reward.geodesic_margin)
+                           guide_margin=self.cfg.reward.geodesic_margin, robots=robots)
         family = torch.tensor([self.families.index(f) for f in batch.family], dtype=torch.int64, device=self.device)
         guide = None if batch.goal_field is None else (batch.goal_field, batch.goal_frame.to(self.dtype))
         return pad_world(batch.world, **self.slots), batch.start, batch.goal, family, batch.difficulty, batch.bounds, guide
@@ -302,13 +313,16 @@ class NavTask(BatchedTask):
                 raise ValueError(f"place_episodes: the {name} of {noun} {names[bad][:10].tolist()} lies {what} an obstacle of map "
                                  f"{self.cfg.map!r} or its edge (clearance {[round(v, 3) for v in clear[bad][:10].tolist()]} m)")
 
-    def _from_pool(self, pool: EpisodePool, n: int, cur: CurriculumState, generator: torch.Generator) -> NavState:
+    def _from_pool(self, pool: EpisodePool, n: int, cur: CurriculumState, generator: torch.Generator,
+                   fresh: Callable[[Tensor], Any] | None = None) -> NavState:
         """``n`` episodes from ``pool``, refilled with ``reset.pool`` new ones (at least ``n``) when it runs
-        short; each pooled episode fits any env. Why, and ``reset.reuse``: docs/tasks.md, "Episode pool"."""
+        short; each pooled episode fits any env. Why, and ``reset.reuse``: docs/tasks.md, "Episode pool".
+        ``fresh(idx)``: new episodes for the env indices ``idx`` (default this task's; the multi-robot task passes its own)."""
+        fresh = fresh or (lambda idx: self._fresh(idx, cur, generator))
 
         def refill(n: int) -> NavState:
             size = max(self.cfg.reset.pool or self.num_envs, n)
-            return self._fresh(torch.arange(size, device=self.device) % self.num_envs, cur, generator)
+            return fresh(torch.arange(size, device=self.device) % self.num_envs)
 
         return pool.take(n, self.cfg.reset.reuse, generator, refill)
 

@@ -130,17 +130,26 @@ def sample_goals(
     return _gather(cand, idx), ok[:, :k].any(dim=1)
 
 
+def _nearest(xy: Tensor, points: Tensor) -> Tensor:
+    """Distance ``(n, m, k)`` of candidates ``xy`` ``(n, m, k, 2)`` to ``points`` ``(n, 2)``, or to the nearest
+    of ``points`` ``(n, J, 2)`` (the starts or goals of several robots)."""
+    if points.dim() == 2:
+        return (xy - points[:, None, None]).norm(dim=-1)
+    return (xy[..., None, :] - points[:, None, None]).norm(dim=-1).amin(-1)
+
+
 def place_random_objects(
     world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
     *, start_need: float = 0.0, goal_need: float = 0.0,
 ) -> World:
     """Fill the random box and circle slots of ``world`` (batch ``n``) with fresh objects.
 
-    Each object keeps ``max(clearance, start_need)`` m from the start point,
-    ``max(clearance, goal_need)`` m from the goal and ``margin`` m from every fixed
-    obstacle, wall and object placed before it (tested on its circumscribed
-    circle, so the guarantee is conservative). ``start_need``/``goal_need`` are
-    the task's own clearances, which a map's smaller ``clearance`` must not undo.
+    Each object keeps ``max(clearance, start_need)`` m from the start point ``start_xy`` ``(n, 2)``
+    (or from each of ``(n, J, 2)``: several robots), ``max(clearance, goal_need)`` m from the goal
+    ``goal_xy`` (likewise) and ``margin`` m from every fixed obstacle, wall and object placed
+    before it (tested on its circumscribed circle, so the guarantee is conservative).
+    ``start_need``/``goal_need`` are the task's own clearances, which a map's smaller
+    ``clearance`` must not undo.
     Fallback: an object with no valid candidate is left out of this episode (its
     slot is masked off).
     """
@@ -174,8 +183,8 @@ def place_random_objects(
     gap = _clearance(xy.reshape(n, m * k, 2), fixed).reshape(n, m, k) - rc
     ok = (
         (gap >= margin)
-        & ((xy - start_xy[:, None, None]).norm(dim=-1) - rc >= clear)
-        & ((xy - goal_xy[:, None, None]).norm(dim=-1) - rc >= clear_g)
+        & (_nearest(xy, start_xy) - rc >= clear)
+        & (_nearest(xy, goal_xy) - rc >= clear_g)
         & _inside(xy, spec.bounds, 0.0) & _inside(xy, spec.bounds, rc.clamp(min=0))
     )
     # Objects in order, each keeping `margin` from the circumscribed circles of those placed before it.
@@ -237,7 +246,7 @@ def place_movers(
     ``plan`` and ``boxes``: ``(n, M, 3)`` for ``moving_boxes``, every mover a box; ``(n, 0, 3)`` for discs).
 
     Positions are placed like random circles (:func:`place_random_objects`: ``clearance`` from
-    the start and the goal, ``margin`` from every obstacle of ``world``, including this
+    the start and the goal, or from every robot's of ``(n, J, 2)`` starts and goals, ``margin`` from every obstacle of ``world``, including this
     episode's random objects, and from each other; inside the region); a mover with no valid
     candidate is left out (masked off). Headings are uniform, speeds uniform in ``speed``;
     patrols and pedestrians get ``waypoints`` points uniform in the region (shrunk by

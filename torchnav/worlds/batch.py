@@ -16,9 +16,9 @@ class WorldBatch:
     """``B`` generated worlds, each with a start and a reachable goal."""
 
     world: World  # the obstacles, padded (B, N, ...) tensors with masks
-    start: Tensor  # (B, 3) start pose [x m, y m, theta rad]
-    goal: Tensor  # (B, 2) goal [x, y] m
-    path_length: Tensor  # (B,) m of a collision-free path for the robot's disc: never below the shortest (docs/worlds.md)
+    start: Tensor  # (B, 3) start pose [x m, y m, theta rad]; (B, N, 3) with N robots per world (make_worlds(robots=...))
+    goal: Tensor  # (B, 2) goal [x, y] m; (B, N, 2) with N robots
+    path_length: Tensor  # (B,) m (or (B, N)) of a collision-free path for the robot's disc: never below the shortest (docs/worlds.md)
     bounds: Tensor  # (B, 4) [xmin, ymin, xmax, ymax] m of each world (walls run along them)
     difficulty: Tensor  # (B,) in [0, 1], the difficulty each env was generated at
     family: tuple[str, ...]  # B family names ("rooms", ..., or "map:<name>" for a shipped map)

@@ -9,6 +9,8 @@ difficulty-dependent band. Why the path is safe, and how tight its length is: do
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 import torch
 from torch import Tensor
@@ -71,39 +73,64 @@ def _random_cell(candidates: Tensor, generator: torch.Generator) -> Tensor:
     return torch.where(candidates, key, -1.0).argmax(1)
 
 
-def _start_and_distances(free: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor]:
+def _start_and_distances(free: Tensor, generator: torch.Generator, allowed: Tensor | None = None) -> tuple[Tensor, Tensor]:
     """A start cell ``(B,)`` in a large free component and the distances from it ``(B, H * W)``; how the
-    start is redrawn out of a pocket (``START_REDRAWS`` times): docs/worlds.md, "Starts, goals and the path guarantee"."""
+    start is redrawn out of a pocket (``START_REDRAWS`` times): docs/worlds.md, "Starts, goals and the path guarantee".
+    ``allowed`` ``(B, H * W)``: the free cells the start may take (default every free one; at least one per env)."""
     b = free.shape[0]
     flat_free = free.reshape(b, -1)
-    start = _random_cell(flat_free, generator)
+    allowed = flat_free if allowed is None else allowed
+    start = _random_cell(allowed, generator)
     dist = geodesic_distance(free, start).reshape(b, -1)
     for _ in range(START_REDRAWS):
         reached = (dist < UNREACHED).sum(1)
         idx = (2 * reached < flat_free.sum(1)).nonzero()[:, 0]
         if idx.numel() == 0:
             break
-        other = _random_cell(flat_free[idx] & (dist[idx] == UNREACHED), generator)
+        # Redrawn only where an allowed cell lies outside the start's component (else _random_cell's 0 would be taken).
+        elsewhere = allowed[idx] & (dist[idx] == UNREACHED)
+        other = _random_cell(elsewhere, generator)
         d_other = geodesic_distance(free[idx], other).reshape(idx.numel(), -1)
-        better = (d_other < UNREACHED).sum(1) > reached[idx]
+        better = ((d_other < UNREACHED).sum(1) > reached[idx]) & elsewhere.any(1)
         start[idx[better]], dist[idx[better]] = other[better], d_other[better]
     return start, dist
 
 
-def _place_chunk(free: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywhere: Tensor, generator: torch.Generator) -> tuple[Tensor, Tensor, Tensor]:
-    """Start cell, goal cell (flat indices, ``(B,)``) and the path length between them in cells;
-    where ``anywhere`` ``(B,)`` is True the band is every reachable cell."""
-    start, dist = _start_and_distances(free, generator)
+def _goal_cell(dist: Tensor, difficulty: Tensor, min_goal_cells: Tensor, anywhere: Tensor, generator: torch.Generator,
+               allowed: Tensor | None = None) -> tuple[Tensor, Tensor]:
+    """A goal cell (flat index, ``(B,)``) and its path length in cells, drawn from the distances
+    ``dist`` ``(B, H * W)`` of a start; where ``anywhere`` ``(B,)`` is True the band is every reachable
+    cell. ``allowed`` ``(B, H * W)``: the cells the goal may take (default all); where none of them
+    is reachable, the fallback ignores it."""
     reached = dist < UNREACHED
     cells = dist.to(torch.float64) / ORTHO
     far = torch.where(reached, cells, 0.0).amax(1, keepdim=True)
     lo, hi = goal_band(difficulty.to(torch.float64))
     lo, hi = torch.where(anywhere, 0.0, lo), torch.where(anywhere, 1.0, hi)
     in_band = reached & (cells >= lo[:, None] * far) & (cells <= hi[:, None] * far) & (cells >= min_goal_cells[:, None])
-    # Fallback when the band is empty (a component too small for min_goal): the farthest reachable cell.
-    farthest = torch.where(reached, cells, -1.0).argmax(1)
-    goal = torch.where(in_band.any(1), _random_cell(in_band, generator), farthest)
-    return start, goal, cells.gather(1, goal[:, None])[:, 0]
+    # Fallback when the band is empty (a component too small for min_goal): the farthest reachable cell
+    # (the farthest allowed one where one is reachable).
+    score = torch.where(reached, cells, -1.0)
+    if allowed is not None:
+        in_band = in_band & allowed
+        score = score + torch.where(reached & allowed, 2.0 * UNREACHED, 0.0)
+    goal = torch.where(in_band.any(1), _random_cell(in_band, generator), score.argmax(1))
+    return goal, cells.gather(1, goal[:, None])[:, 0]
+
+
+def _free_grid(world: World, bounds: Tensor, robot_radius: float, resolution: float) -> tuple[Tensor, Tensor, tuple[float, float], Tensor]:
+    """:func:`_clearance` and the free cells ``(B, H, W)`` (see the module notes); ValueError where an env has none."""
+    clear, centres, origin = _clearance(world, bounds, robot_radius, resolution)
+    free = clear > _safe(robot_radius, resolution)
+    empty = ~free.flatten(1).any(1)
+    if empty.any():
+        raise ValueError(f"no free space for a robot of radius {robot_radius} m at resolution {resolution} m in {int(empty.sum())} env(s)")
+    return clear, centres, origin, free
+
+
+def _min_goal_cells(anywhere: Tensor, min_goal_distance: float, resolution: float) -> Tensor:
+    """The least goal path length ``(B,)`` in cells: ``min_goal_distance`` m, at most ``ANYWHERE_MIN_GOAL`` where ``anywhere``."""
+    return torch.where(anywhere, min(ANYWHERE_MIN_GOAL, min_goal_distance), min_goal_distance).to(torch.float64) / resolution
 
 
 def _place(
@@ -111,13 +138,10 @@ def _place(
     min_goal_distance: float, guide_cells: int, guide_margin: float,
 ) -> tuple[Tensor, ...]:
     """:func:`place_episodes` for one chunk of envs."""
-    clear, centres, origin = _clearance(world, bounds, robot_radius, resolution)
-    free = clear > _safe(robot_radius, resolution)
-    empty = ~free.flatten(1).any(1)
-    if empty.any():
-        raise ValueError(f"no free space for a robot of radius {robot_radius} m at resolution {resolution} m in {int(empty.sum())} env(s)")
-    min_goal = torch.where(anywhere, min(ANYWHERE_MIN_GOAL, min_goal_distance), min_goal_distance).to(torch.float64) / resolution
-    start_cell, goal_cell, cells = _place_chunk(free, difficulty, min_goal, anywhere, generator)
+    clear, centres, origin, free = _free_grid(world, bounds, robot_radius, resolution)
+    min_goal = _min_goal_cells(anywhere, min_goal_distance, resolution)
+    start_cell, dist = _start_and_distances(free, generator)
+    goal_cell, cells = _goal_cell(dist, difficulty, min_goal, anywhere, generator)
     n, like, flat = bounds.shape[0], bounds, centres.reshape(-1, 2)
     jitter = uniform(-0.5 * resolution, 0.5 * resolution, (2, n, 2), generator, like)
     heading = uniform(-math.pi, math.pi, (n, 1), generator, like)
@@ -190,7 +214,13 @@ def place_episodes(
     """
     if anywhere is None:
         anywhere = torch.zeros(bounds.shape[0], dtype=torch.bool, device=bounds.device)
-    # Chunks of envs of similar size, so a chunk's grid fits its envs closely.
+    return _in_chunks(bounds, resolution, lambda idx: _place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], generator, robot_radius,
+                                                             resolution, min_goal_distance, guide_cells, guide_margin))
+
+
+def _in_chunks(bounds: Tensor, resolution: float, place: Callable[[Tensor], tuple[Tensor, ...]]) -> tuple[Tensor, ...]:
+    """``place(idx)``'s outputs for chunks ``idx`` of envs of similar world size (``bounds`` ``(B, 4)``), so
+    a chunk's grid fits its envs closely, of at most ``_CELLS_PER_CHUNK`` cells; joined in env order."""
     cells = ((bounds[:, 2:] - bounds[:, :2]) / resolution + 1).prod(1)
     order = torch.argsort(cells, stable=True)
     sizes = cells[order].tolist()
@@ -199,9 +229,96 @@ def place_episodes(
         j = i + 1
         while j < len(sizes) and (j + 1 - i) * sizes[j] <= _CELLS_PER_CHUNK:
             j += 1
-        idx = order[i:j]
-        parts.append(_place(world[idx], bounds[idx], difficulty[idx], anywhere[idx], generator, robot_radius, resolution, min_goal_distance,
-                            guide_cells, guide_margin))
+        parts.append(place(order[i:j]))
         i = j
     inverse = torch.argsort(order)
     return tuple(torch.cat(t)[inverse] for t in zip(*parts))
+
+
+@dataclass(frozen=True)
+class RobotPlacement:
+    """Several robots per world (:func:`place_robots`, ``make_worlds(robots=...)``)."""
+
+    n: int  # robots per world
+    start_apart: float = 0.0  # m, least distance between two robots' starts (centre to centre)
+    goal_apart: float = 0.0  # m, least distance between two goals
+    sides: bool = False  # True: even robots start in the left third of the world and go to the right third, odd ones the other way
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.n, int) and self.n >= 1) or self.start_apart < 0 or self.goal_apart < 0:
+            raise ValueError(f"RobotPlacement needs n >= 1 and distances >= 0, got {self}")
+
+
+def _gap(points: Tensor, placed: list[Tensor]) -> Tensor:
+    """Distance ``(B, C)`` m of each of ``points`` ``(B, C, 2)`` to the nearest of ``placed`` (``(B, 2)`` each; inf if none)."""
+    if not placed:
+        return points.new_full(points.shape[:2], math.inf)
+    return (points[:, :, None] - torch.stack(placed, 1)[:, None]).norm(dim=-1).amin(-1)
+
+
+def _place_robots(
+    world: World, bounds: Tensor, difficulty: Tensor, anywhere: Tensor, generator: torch.Generator, robot_radius: float, resolution: float,
+    min_goal_distance: float, robots: RobotPlacement,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """:func:`place_robots` for one chunk of envs: robot after robot, each placed as :func:`_place` places
+    its one, among the cells that keep the distances from the robots placed before it."""
+    _, centres, _, free = _free_grid(world, bounds, robot_radius, resolution)
+    b, like, flat = bounds.shape[0], bounds, centres.reshape(-1, 2)
+    flat_free = free.reshape(b, -1)
+    everywhere = torch.ones_like(flat_free)
+    regions = (everywhere, everywhere)
+    if robots.sides:  # the goal lies anywhere reachable in the far third: no difficulty band
+        third, x = (bounds[:, 2:3] - bounds[:, 0:1]) / 3, flat[None, :, 0]
+        regions = (x <= bounds[:, 0:1] + third, x >= bounds[:, 2:3] - third)
+        anywhere = torch.ones_like(anywhere)
+    min_goal = _min_goal_cells(anywhere, min_goal_distance, resolution)
+    rows = torch.arange(b, device=bounds.device)
+    starts, goals, headings, lengths = [], [], [], []
+    for i in range(robots.n):
+        home, away = regions[i % 2], regions[(i + 1) % 2]
+        # The jitter first, so that the distances are tested on the very points each cell would give.
+        jitter = uniform(-0.5 * resolution, 0.5 * resolution, (2, b, 2), generator, like)
+        at_start, at_goal = flat + jitter[0][:, None], flat + jitter[1][:, None]  # (b, C, 2)
+        # Start cells: free, in the home region where it has free cells, apart from the starts before;
+        # where none is, the one of them farthest from those (the robots then start closer).
+        pool = flat_free & home
+        pool = torch.where(pool.any(1, keepdim=True), pool, flat_free)
+        gap = _gap(at_start, starts)
+        allowed = pool & (gap >= robots.start_apart)
+        farthest = torch.zeros_like(pool).scatter(1, torch.where(pool, gap, -1.0).argmax(1, keepdim=True), True)
+        start_cell, dist = _start_and_distances(free, generator, torch.where(allowed.any(1, keepdim=True), allowed, farthest))
+        goal_cell, cells = _goal_cell(dist, difficulty, min_goal, anywhere, generator, away & (_gap(at_goal, goals) >= robots.goal_apart))
+        headings.append(uniform(-math.pi, math.pi, (b,), generator, like))
+        starts.append(at_start[rows, start_cell])
+        goals.append(at_goal[rows, goal_cell])
+        lengths.append(cells.to(like.dtype) * resolution + jitter.norm(dim=-1).sum(0))
+    start = torch.cat((torch.stack(starts, 1), torch.stack(headings, 1)[..., None]), -1)
+    return start, torch.stack(goals, 1), torch.stack(lengths, 1)
+
+
+def place_robots(
+    world: World,
+    bounds: Tensor,
+    difficulty: Tensor,
+    generator: torch.Generator,
+    robots: RobotPlacement,
+    robot_radius: float = 0.2,
+    resolution: float = 0.1,
+    min_goal_distance: float = 1.0,
+    anywhere: Tensor | None = None,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Start poses ``(B, N, 3)``, goals ``(B, N, 2)`` and path lengths ``(B, N)`` (m) of ``robots.n`` robots
+    per world, each placed as :func:`place_episodes` places its one robot (free cells, a start in a large
+    free component, a goal in the difficulty's band reachable from that start: the same path guarantee
+    for each robot's disc), robot after robot. Each start also keeps ``robots.start_apart`` m from the
+    starts before it and each goal ``robots.goal_apart`` m from the goals before it, measured on the
+    jittered points. Fallbacks: where no free cell is far enough from the other starts, the farthest
+    one; where no reachable goal cell is far enough from the other goals, the band (then the farthest
+    reachable cell) ignores them. With ``robots.sides`` even robots start in the left third of the
+    world (where it has a free cell) and their goal is any reachable cell at least ``min(0.5,
+    min_goal_distance)`` m of path away in the right third, odd robots the other way. ValueError as
+    :func:`place_episodes`."""
+    if anywhere is None:
+        anywhere = torch.zeros(bounds.shape[0], dtype=torch.bool, device=bounds.device)
+    return _in_chunks(bounds, resolution, lambda idx: _place_robots(world[idx], bounds[idx], difficulty[idx], anywhere[idx], generator,
+                                                                    robot_radius, resolution, min_goal_distance, robots))

@@ -13,7 +13,7 @@ from ..sim import World
 from . import cave, corridors, fences, forest, open_space, rooms
 from .batch import WorldBatch, cat_batches
 from .layout import as_difficulty, centred_bounds
-from .placement import place_episodes
+from .placement import RobotPlacement, place_episodes, place_robots
 
 FAMILIES: dict[str, ModuleType] = {"rooms": rooms, "corridors": corridors, "cave": cave, "forest": forest, "open": open_space, "fences": fences}
 MAP_PREFIX = "map:"  # "map:<name>" is a shipped map (or a .yaml path) as a family
@@ -70,6 +70,7 @@ def make_worlds(
     below_level: float = 0.0,
     guide_cells: int = 0,
     guide_margin: float = 0.0,
+    robots: RobotPlacement | None = None,
 ) -> WorldBatch:
     """``num_envs`` worlds of one family (a name of :data:`FAMILIES` or ``"map:<name>"``), each with a
     start and a reachable goal; the arguments up to ``anywhere_goals``: docs/worlds.md, "Generating
@@ -79,6 +80,8 @@ def make_worlds(
     ``difficulty`` holds each env's own. ``guide_cells > 0``: also each env's grid of geodesic
     distances to its goal, ``guide_cells`` a side (``goal_field``, ``goal_frame``; torchnav/worlds/guide.py),
     for paths that keep ``guide_margin`` m more than the robot's radius from obstacles.
+    ``robots``: several robots per world (:func:`~.placement.place_robots`); the batch's ``start``,
+    ``goal`` and ``path_length`` are then ``(B, N, 3)``, ``(B, N, 2)`` and ``(B, N)`` (no goal grids).
     Worlds of one family share their slot counts.
     """
     for name, share in (("anywhere_goals", anywhere_goals), ("below_level", below_level)):
@@ -93,8 +96,14 @@ def make_worlds(
     anywhere = torch.rand(num_envs, generator=generator, device=dev) < anywhere_goals if anywhere_goals > 0 else None
     if guide_cells < 0 or guide_margin < 0:
         raise ValueError(f"guide_cells and guide_margin must be >= 0, got {guide_cells} and {guide_margin}")
-    start, goal, length, *field = place_episodes(world, bounds, d, generator, robot_radius=robot_radius, resolution=resolution,
-                                                 anywhere=anywhere, guide_cells=guide_cells, guide_margin=guide_margin)
+    if robots is not None:
+        if guide_cells:
+            raise ValueError("make_worlds: goal-distance grids (guide_cells) are for one robot per world, not with robots")
+        start, goal, length, *field = place_robots(world, bounds, d, generator, robots, robot_radius=robot_radius, resolution=resolution,
+                                                   anywhere=anywhere)
+    else:
+        start, goal, length, *field = place_episodes(world, bounds, d, generator, robot_radius=robot_radius, resolution=resolution,
+                                                     anywhere=anywhere, guide_cells=guide_cells, guide_margin=guide_margin)
     return WorldBatch(
         world=world, start=start, goal=goal, path_length=length, bounds=bounds, difficulty=d,
         family=(family,) * num_envs, robot_radius=robot_radius, goal_field=field[0] if field else None, goal_frame=field[1] if field else None,
@@ -108,12 +117,12 @@ def mix_worlds(
     generator: torch.Generator,
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
-    **placement: float | int,
+    **placement: float | int | RobotPlacement | None,
 ) -> WorldBatch:
     """``num_envs`` worlds whose family is drawn per env from ``families`` (names, drawn uniformly, or
     ``{name: weight}``; docs/worlds.md, "Several families in one batch"). ``difficulty``: as for
     :func:`make_worlds`, or ``{family: difficulty}`` (a per-family curriculum). ``placement``:
-    ``robot_radius``, ``anywhere_goals``, ``below_level``, ``guide_cells`` and ``guide_margin`` as for :func:`make_worlds`."""
+    ``robot_radius``, ``anywhere_goals``, ``below_level``, ``guide_cells``, ``guide_margin`` and ``robots`` as for :func:`make_worlds`."""
     names = list(families)
     if not names:
         raise ValueError("mix_worlds needs at least one family")
