@@ -82,7 +82,8 @@ def _uninstall_sigterm() -> None:
 
 
 class EpisodeRecorder:
-    """Record envs ``envs`` of a batched ``NavEnv`` to an MCAP file at ``path``.
+    """Record envs ``envs`` of a batched ``NavEnv`` (or ``LineEnv``, or ``MultiNavEnv``: every robot of
+    those envs, docs/foxglove.md "Several robots per env") to an MCAP file at ``path``.
 
     Args:
         path: output file (parent directories are created). An existing file is replaced.
@@ -432,7 +433,7 @@ def record_rollout(
             td = env.rand_action(td)
         else:
             td.update(policy(td))
-        before = env.state  # steps replace the state, never change it in place
+        before = env.state  # a step makes a new state (the tasks are pure), so this one stays as it was
         td = env.step(td)
         if recorder is not None:
             recorder.write_step(td, env.state, before)

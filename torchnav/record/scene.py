@@ -3,7 +3,9 @@
 Kept free of tensors: it receives numpy rows of one step of one env (see
 ``EpisodeRecorder._select`` for the keys). The static part of the scene (walls,
 boxes, circles, goal) is encoded once per episode and spliced into every step's
-``SceneUpdate``, so a step costs a handful of small ``json.dumps``.
+``SceneUpdate``, so a step costs a handful of small ``json.dumps``. ``MultiEnvStream`` does the
+same for an env of several robots, with the per-robot pieces (transforms, scan, disc, trail,
+odometry) built by the same functions.
 """
 
 from __future__ import annotations
