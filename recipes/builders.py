@@ -111,9 +111,6 @@ def setup(name: str, argv: list[str], ckpt_format: str, action_mode: str | None 
     task = task_protocol(cfg)
     if action_mode is not None and task.config.action.mode != action_mode:
         raise ConfigError(f"{name} needs task.action.mode={action_mode}, got {task.config.action.mode!r}")
-    if cfg.eval.record_episodes and not task.records:
-        raise ConfigError(f"eval.record_episodes={cfg.eval.record_episodes}: recording several robots is not implemented "
-                          f"({name} cannot record its episodes); use eval.record_episodes=0")
     run_dir = make_run_dir(cfg, name, resuming=resume_dir is not None)
     if ckpt is not None and resume_dir is None:
         print(f"resume: a new run in {run_dir} continues {ckpt_path} at {int(ckpt['counters']['frames']):,} frames")

@@ -174,7 +174,6 @@ class MultiNavProtocol(TaskProtocol):
     name, place, config_class, env_class = "multi_nav", "map", MultiNavConfig, MultiNavEnv
     outcome_keys = ("team_success",)  # top-level flags of a finished env's episode
     outcomes = ("team_success", "at_goal", "robot_collision", "collision", "timeout")
-    records = False  # recording several robots is not implemented
 
     def __init__(self, config: MultiNavConfig, anywhere: bool = True, map: str | None = None) -> None:
         """As ``NavProtocol``: ``anywhere`` turns the goal curriculum off for evaluation (the
@@ -236,10 +235,27 @@ class MultiNavProtocol(TaskProtocol):
 
     def record(self, policy, path: Path, episodes: int, seed: int, device, metadata: dict | None = None,
                reset: Callable[[Any], Any] | None = None) -> Any:
-        raise NotImplementedError("MCAP recording of several robots is not implemented yet: set eval.record_episodes=0")
+        """As :meth:`TaskProtocol.record`, every robot of each env in the file (docs/foxglove.md, "Several
+        robots"); ``policy`` as for :meth:`run`."""
+        return super().record(self._per_robot(policy), path, episodes, seed, device, metadata, reset)
 
-    def record_with(self, *args: Any, **kwargs: Any) -> Any:
-        raise NotImplementedError("recording several robots is not implemented yet")
+    def record_with(self, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any],
+                    reset: Callable[[Any], Any] | None = None) -> Any:
+        """As :meth:`TaskProtocol.record_with` (an MCAP file or a ``LiveView``); ``policy`` as for :meth:`run`."""
+        return super().record_with(self._per_robot(policy), episodes, seed, device, make_recorder, reset)
+
+    @staticmethod
+    def _per_robot(policy) -> Callable[[Any], Any]:
+        """``policy`` (``"observation"`` -> ``"action"``) as a policy of the env's agent group: every robot's
+        ``("agents", "observation")`` ``(E, N, D)`` -> ``("agents", "action")``, as :meth:`run` applies it."""
+        from tensordict import TensorDict
+
+        def act(td):
+            obs = td["agents", "observation"]
+            td["agents", "action"] = policy(TensorDict({"observation": obs}, batch_size=obs.shape[:-1]))["action"]
+            return td
+
+        return act
 
     def where(self) -> str:
         return NavProtocol.where(self) if self.config.worlds.families else super().where()

@@ -14,7 +14,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from .mcap_writer import _SHARED, EpisodeRecorder
+from .mcap_writer import EpisodeRecorder
 
 
 class LiveView(EpisodeRecorder):
@@ -48,9 +48,8 @@ class LiveView(EpisodeRecorder):
         self.port = self.server.port
         schemas = {k: foxglove.Schema(name=s["title"], encoding="jsonschema", data=json.dumps(s).encode()) for k, s in self.schemas().items()}
         for st in self.streams:
-            st.channels = {name: foxglove.Channel(f"/env{st.env}/{name}", schema=schemas[_SHARED.get(name, name)],
-                                                  message_encoding="json", context=self._context)
-                           for name in self.topics}
+            st.channels = {name: foxglove.Channel(f"/env{st.env}/{name}", schema=schemas[kind], message_encoding="json", context=self._context)
+                           for name, kind in st.topic_kinds()}
         self._wall0 = time.monotonic()
 
     def add_message(self, channel: Any, t_ns: int, payload: str) -> None:

@@ -81,11 +81,9 @@ def _uninstall_sigterm() -> None:
         _SIG["installed"] = False
 
 
-_SHARED = {"odom_estimate": "odom", "camera_depth": "camera"}  # topics that use another topic's schema
-
-
 class EpisodeRecorder:
-    """Record envs ``envs`` of a batched ``NavEnv`` to an MCAP file at ``path``.
+    """Record envs ``envs`` of a batched ``NavEnv`` (or ``LineEnv``, or ``MultiNavEnv``: every robot of
+    those envs, docs/foxglove.md "Several robots per env") to an MCAP file at ``path``.
 
     Args:
         path: output file (parent directories are created). An existing file is replaced.
@@ -141,7 +139,9 @@ class EpisodeRecorder:
         self._idx = torch.tensor(self.envs, device=env.device)
         self.dt_ns = int(round(env.cfg.robot.dt * 1e9))
         self.term_names = tuple(env.task.term_names)
-        self.lidar = env.task.params.lidar
+        # several robots per env (MultiNavEnv): per-robot topics and frames (scene.MultiEnvStream)
+        self.multi = getattr(env, "n_robots", None) is not None
+        self.lidar = (env.task.nav if self.multi else env.task).params.lidar
         # Extension points for envs other than NavEnv (see docs/foxglove.md): which outputs exist,
         # the flags that name why an episode terminated, and static lines drawn in every scene.
         keys = set(env.observation_spec.keys())
@@ -157,7 +157,7 @@ class EpisodeRecorder:
         self.styles = getattr(getattr(env.task, "spec", None), "styles", None)  # a map's own obstacle heights and colours
         self.movers = getattr(env.task, "n_movers", 0) > 0
         self.topics = self.TOPICS + (("imu",) if self.imu else ()) + (("camera", "camera_depth") if self.camera else ()) + (("movers",) if self.movers else ())
-        self.streams = [scene.EnvStream(i, env, self) for i in self.envs]
+        self.streams = [(scene.MultiEnvStream if self.multi else scene.EnvStream)(i, env, self) for i in self.envs]
         self._writer = None
         self._file = None
         self._guard(self._open, metadata or {})
@@ -168,15 +168,15 @@ class EpisodeRecorder:
 
     # -- file ------------------------------------------------------------------------------
 
-    TOPICS = ("tf", "scan", "scene", "odom", "odom_estimate", "action", "reward", "events")  # /env<i>/<topic>
+    TOPICS = ("tf", "scan", "scene", "odom", "odom_estimate", "action", "reward", "events")  # /env<i>/<topic> (one robot per env)
 
     def schemas(self) -> dict[str, dict]:
         """The JSON Schema of each kind of message (``odom_estimate`` uses ``odom``'s)."""
         return {
             "tf": foxglove_schema("FrameTransforms"), "scan": foxglove_schema("LaserScan"),
             "scene": foxglove_schema("SceneUpdate"), "odom": foxglove_schema("Odometry"),
-            "action": action_schema(self.env.action_spec.shape[-1]), "reward": reward_schema(self.term_names),
-            "events": event_schema(),
+            "action": action_schema(self.env.action_spec.shape[-1], self.multi), "reward": reward_schema(self.term_names, self.multi),
+            "events": event_schema(self.multi),
             **({"imu": imu_schema()} if self.imu else {}),
             **({"camera": foxglove_schema("RawImage")} if self.camera else {}),
             **({"movers": movers_schema()} if self.movers else {}),
@@ -191,10 +191,7 @@ class EpisodeRecorder:
         self._writer.start(profile="", library=f"torchnav {__version__}")
         sid = {k: self._writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode()) for k, s in self.schemas().items()}
         for st in self.streams:
-            st.channels = {
-                name: self._writer.register_channel(f"/env{st.env}/{name}", "json", sid[_SHARED.get(name, name)])
-                for name in self.topics
-            }
+            st.channels = {name: self._writer.register_channel(f"/env{st.env}/{name}", "json", sid[kind]) for name, kind in st.topic_kinds()}
         self._writer.add_metadata("torchnav", self._metadata(metadata))
         self._flush_file()
 
@@ -211,6 +208,8 @@ class EpisodeRecorder:
             "robot_radius": repr(cfg.robot.radius), "goal_tolerance": repr(getattr(cfg, "goal_tolerance", 0.0)),
             "reward_terms": json.dumps(list(self.term_names)), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
+        if self.multi:
+            meta["n_robots"] = str(self.env.n_robots)
         for k, v in extra.items():
             meta[str(k)] = v if isinstance(v, str) else json.dumps(v, default=str)
         return meta
@@ -261,20 +260,32 @@ class EpisodeRecorder:
         """Steps written so far per recorded env (buffered steps not included)."""
         return {s.env: s.steps_written for s in self.streams}
 
-    def write_step(self, td: TensorDictBase, state: Any | None = None) -> None:
+    def write_step(self, td: TensorDictBase, state: Any | None = None, before: Any | None = None) -> None:
         """Buffer one step ``(B,)``: root keys before it, ``("next", ...)`` after it; ``state``: the env's
         state right after ``env.step``, for the episode's world, the odometry estimate and the applied
-        twist (without it: the map's fixed obstacles and the commanded twist; docs/foxglove.md)."""
+        twist (without it: the map's fixed obstacles and the commanded twist; docs/foxglove.md).
+        ``before``: the env's state before the step, needed for several robots (their scans at an
+        episode's start are in no key of ``td``); ignored for one robot."""
         if not self.enabled or self.finished:
             return
-        self._buffer.append(self._select(td, state))
+        if self.multi:
+            if state is None or before is None:
+                raise ValueError("EpisodeRecorder.write_step: a MultiNavEnv step needs state=env.state after the step and "
+                                 "before=env.state before it (record_rollout passes both)")
+            self._buffer.append(self._select_multi(td, state, before))
+        else:
+            self._buffer.append(self._select(td, state))
         if len(self._buffer) >= self.flush_steps:
             self._drain()
 
     def write_rollout(self, td: TensorDictBase, states: Iterable[Any] | None = None) -> None:
         """Write a rollout ``(B, T)`` (``env.rollout(..., break_when_any_done=False)`` layout), with the
         state after each step in ``states`` if given; without them the episodes show the map's fixed
-        obstacles only (docs/foxglove.md, "Recording")."""
+        obstacles only (docs/foxglove.md, "Recording"). Not for several robots, whose steps need the states
+        before and after each step: record those with :func:`record_rollout` or :meth:`write_step`."""
+        if self.multi:
+            raise ValueError("EpisodeRecorder.write_rollout: a MultiNavEnv rollout lacks the robots' scans; record it with "
+                             "record_rollout(env, policy, max_steps, recorder=rec) or write_step(td, state, before)")
         if td.batch_dims == 1:
             td = td.unsqueeze(-1)
         states = list(states) if states is not None else [None] * td.shape[1]
@@ -351,6 +362,27 @@ class EpisodeRecorder:
             sel["depth1"], sel["rgb1"] = camera_image(sim.pose, state.world[idx], self.camera, mw, self.styles)
         return TensorDict(sel, batch_size=[len(self.envs)])
 
+    def _select_multi(self, td: TensorDictBase, state: Any, before: Any) -> TensorDictBase:
+        """The recorded envs' slice of one ``MultiNavEnv`` step: per robot ``(E, N, ...)``, per env ``(E,)``."""
+        nxt = td.get("next")
+        a0, a1, r0, r1 = td.get("agents"), nxt.get("agents"), before.sim.robots, state.sim.robots
+        flag = lambda key: a1.get(key)[..., 0]  # noqa: E731
+        w = state.world
+        out = {
+            "pose0": r0.pose, "ranges0": r0.ranges, "goal": state.goal, "present": state.present, "action": a0.get("action"),
+            "vel1": r1.vel, "pose1": r1.pose, "ranges1": r1.ranges, "reward": a1.get("reward")[..., 0], "ret": state.ep_return,
+            "success": flag("success"), "collision": flag("collision"), "robot_collision": flag("robot_collision"),
+            "arrived": state.arrived, "crashed": state.crashed, "terminated": nxt.get("terminated")[..., 0],
+            "truncated": nxt.get("truncated")[..., 0], "team_success": nxt.get("team_success")[..., 0],
+            "radius": self.env.curriculum.radius.expand(state.present.shape[0]),
+            "segments": w.segments, "segment_mask": w.segment_mask, "circles": w.circles, "circle_mask": w.circle_mask,
+            "boxes": w.boxes, "box_mask": w.box_mask,
+        }
+        if self.term_names:
+            terms = a1.get("reward_terms")
+            out["terms"] = torch.cat([terms.get(k) for k in self.term_names], -1)
+        return TensorDict({k: v.index_select(0, self._idx).detach() for k, v in out.items()}, batch_size=[len(self.envs)])
+
     def _drain(self, force_flush: bool = False) -> None:
         if not self.enabled:
             self._buffer.clear()
@@ -401,13 +433,15 @@ def record_rollout(
             td = env.rand_action(td)
         else:
             td.update(policy(td))
+        before = env.state  # a step makes a new state (the tasks are pure), so this one stays as it was
         td = env.step(td)
         if recorder is not None:
-            recorder.write_step(td, env.state)
+            recorder.write_step(td, env.state, before)
         steps.append(td)
         if i == max_steps - 1 or (recorder is not None and recorder.finished):
             break
-        td = env.maybe_reset(step_mdp(td))
+        # the env's own keys: a multi-agent env's reward and done flags are under ("agents", ...)
+        td = env.maybe_reset(step_mdp(td, reward_keys=env.reward_keys, done_keys=env.done_keys, action_keys=env.action_keys))
     if recorder is not None:
         recorder.flush()
     return torch.stack(steps, dim=env.batch_dims) if stack else steps

@@ -45,7 +45,11 @@ class Episode:
     outcome: str  # success | collision | timeout | incomplete, or the reason of a "terminated" event (left_line, ...)
     steps: int
     ret: float
-    start: dict  # the start event (pose, goal, world)
+    start: dict  # the start event (pose, goal, world; several robots: robots, starts, goals, world)
+    # several robots per env: one entry per present robot, {"robot", "outcome", "steps", "return", ...} of the end
+    # event (outcome success | collision | timeout | ended, or incomplete); None for one robot per env
+    robots: list[dict] | None = None
+    team_success: bool | None = None  # several robots: every present robot reached its goal (None: one robot, or incomplete)
 
 
 @dataclass
@@ -79,23 +83,29 @@ class Recording:
         eps: dict[tuple[int, int], Episode] = {}
         steps: dict[tuple[int, int], int] = {}
         for m in self.messages:
-            if m.topic.endswith("/action"):
+            if m.topic.endswith("/action"):  # several robots: one per robot and step, so count the steps
                 key = (m.data["env"], m.data["episode"])
-                steps[key] = steps.get(key, 0) + 1
+                steps[key] = max(steps.get(key, 0), m.data["step"] + 1)
         for m in self.events():
             d = m.data
             key = (d["env"], d["episode"])
             if d["event"] == "start":
                 eps[key] = Episode(d["env"], d["episode"], m.log_time, None, "incomplete", 0, 0.0, d)
+                if "robots" in d:
+                    eps[key].robots = [{"robot": j, "outcome": "incomplete"} for j in d["robots"]]
             elif key in eps:
                 e = eps[key]
                 outcome = d.get("reason", "terminated") if d["event"] == "terminated" else d["event"]
                 e.end_time, e.outcome, e.ret = m.log_time, outcome, d.get("return", 0.0)
+                if "outcomes" in d:
+                    e.robots, e.team_success = d["outcomes"], d["team_success"]
         for key, e in eps.items():
             e.steps = steps.get(key, 0)
-            if e.outcome == "incomplete":
-                rewards = [m for m in self.topic(f"/env{e.env}/reward", e.start_time) if m.data["episode"] == e.episode]
-                e.ret = rewards[-1].data["return"] if rewards else 0.0
+            if e.outcome == "incomplete":  # the return so far (several robots: their sum)
+                e.ret = 0.0
+                for prefix in [f"/robot{r['robot']}" for r in e.robots] if e.robots is not None else [""]:
+                    rewards = [m for m in self.topic(f"/env{e.env}{prefix}/reward", e.start_time) if m.data["episode"] == e.episode]
+                    e.ret += rewards[-1].data["return"] if rewards else 0.0
         return list(eps.values())
 
 

@@ -2,8 +2,9 @@
 
 ``python -m torchnav.record.replay FILE.mcap [--env 0 --episode 2 --out ep.gif|ep.mp4]``
 (MP4 needs ffmpeg; docs/foxglove.md). Navigation episodes show the obstacles, robot, rays, goal
-and trail beside the rewards; line-following ones the track on a dark floor and the robot's
-path, and their summary counts the termination reasons."""
+and trail beside the rewards (several robots per env: every robot, its goal, rays and trail in its
+colour, and the table lists each robot's outcome); line-following ones the track on a dark floor
+and the robot's path, and their summary counts the termination reasons."""
 
 from __future__ import annotations
 
@@ -21,13 +22,16 @@ from .reader import Episode, Recording, read_recording
 
 
 _STANDARD_META = ("version", "map", "seed", "checkpoint", "config", "envs", "num_envs", "dt", "lidar", "robot_radius",
-                  "goal_tolerance", "reward_terms", "created")
+                  "goal_tolerance", "reward_terms", "created", "n_robots")
 NAV_OUTCOMES = ("success", "collision", "timeout")
 LINE_OUTCOMES = ("left_line", "stalled", "collision", "timeout")  # the end reasons of LineEnv, and its time limit
 
 
 def task_kind(episodes: Sequence[Episode]) -> str:
-    """``"line"`` if the episodes (``Recording.episodes()``) have no goal (a line-following recording), else ``"nav"``."""
+    """``"multi_nav"`` if the episodes (``Recording.episodes()``) have several robots per env, ``"line"`` if they have
+    no goal (a line-following recording), else ``"nav"``."""
+    if episodes and all(e.robots is not None for e in episodes):
+        return "multi_nav"
     return "line" if episodes and all("goal" not in e.start for e in episodes) else "nav"
 
 
@@ -47,13 +51,22 @@ def summary(rec: Recording) -> str:
     lines.append(f"  {'env':>4} {'ep':>4} {'outcome':>10} {'steps':>6} {'return':>9} {'start [s]':>10}")
     for e in eps:
         lines.append(f"  {e.env:>4} {e.episode:>4} {e.outcome:>10} {e.steps:>6} {e.ret:>9.2f} {e.start_time / 1e9:>10.1f}")
+        for r in e.robots or ():  # several robots: the env's row (its team outcome, summed return), then each robot's
+            lines.append(f"  {'':>4} {'r' + str(r['robot']):>4} {r['outcome']:>10} {r.get('steps', ''):>6} {r.get('return', float('nan')):>9.2f}")
     outcomes = [e.outcome for e in eps if e.outcome != "incomplete"]
     if outcomes:
-        known = NAV_OUTCOMES if kind == "nav" else LINE_OUTCOMES
-        keys = known + tuple(sorted(set(outcomes) - set(known)))
-        rates = ", ".join(f"{k} {outcomes.count(k) / len(outcomes):.0%}" for k in keys)
-        lines.append(f"  finished episodes: {len(outcomes)} ({rates})")
+        known = LINE_OUTCOMES if kind == "line" else NAV_OUTCOMES
+        lines.append(f"  finished episodes: {len(outcomes)} ({_rates(outcomes, known)})")
+    robots = [r["outcome"] for e in eps if e.outcome != "incomplete" for r in e.robots or ()]
+    if robots:
+        team = sum(bool(e.team_success) for e in eps if e.outcome != "incomplete")
+        lines.append(f"  team success {team / len(outcomes):.0%}; robots of finished episodes: {len(robots)} ({_rates(robots, NAV_OUTCOMES)})")
     return "\n".join(lines)
+
+
+def _rates(outcomes: list[str], known: tuple[str, ...]) -> str:
+    keys = known + tuple(sorted(set(outcomes) - set(known)))
+    return ", ".join(f"{k} {outcomes.count(k) / len(outcomes):.0%}" for k in keys)
 
 
 def _short(v, n: int = 60) -> str:
@@ -61,15 +74,16 @@ def _short(v, n: int = 60) -> str:
     return s if len(s) <= n else s[: n - 3] + "..."
 
 
-def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
+def episode_frames(rec: Recording, ep: Episode, robot: int | None = None) -> dict[str, np.ndarray]:
     """Arrays of one episode: ``time (N,)`` s, ``pose (N, 3)``, ``ranges (N, R)``, ``reward (N,)`` (0 at the start frame),
     and where recorded ``movers (N, M, 5)`` ``[x, y, vx, vy, radius]`` (the moving discs), ``mover_boxes (N, K, 7)``
     ``[x, y, vx, vy, half_x, half_y, yaw]`` and ``camera (N, H, W, 3)`` uint8 (the start frame, which has none of
-    them, repeats the first step's)."""
+    them, repeats the first step's). ``robot``: that robot's arrays, in a recording of several robots per env."""
     t0, t1 = ep.start_time, ep.end_time
-    odom = rec.topic(f"/env{ep.env}/odom", t0, t1)
-    scans = {m.log_time: m.data["ranges"] for m in rec.topic(f"/env{ep.env}/scan", t0, t1)}
-    rewards = {m.log_time: m.data["reward"] for m in rec.topic(f"/env{ep.env}/reward", t0, t1)}
+    pre = f"/env{ep.env}" + ("" if robot is None else f"/robot{robot}")
+    odom = rec.topic(f"{pre}/odom", t0, t1)
+    scans = {m.log_time: m.data["ranges"] for m in rec.topic(f"{pre}/scan", t0, t1)}
+    rewards = {m.log_time: m.data["reward"] for m in rec.topic(f"{pre}/reward", t0, t1)}
     pose, ranges, reward, times = [], [], [], []
     for m in odom:
         p = m.data["pose"]
@@ -80,10 +94,10 @@ def episode_frames(rec: Recording, ep: Episode) -> dict[str, np.ndarray]:
         times.append((m.log_time - t0) / 1e9)
     out = {"time": np.asarray(times), "pose": np.asarray(pose).reshape(-1, 3), "ranges": np.asarray(ranges, dtype=float),
            "reward": np.asarray(reward)}
-    moving = rec.topic(f"/env{ep.env}/movers", t0, t1)
+    moving = rec.topic(f"{pre}/movers", t0, t1)
     movers = {m.log_time: np.asarray(m.data["discs"], dtype=float).reshape(-1, 5) for m in moving}
     boxes = {m.log_time: np.asarray(m.data["boxes"], dtype=float).reshape(-1, 7) for m in moving if "boxes" in m.data}
-    images = {m.log_time: m.data for m in rec.topic(f"/env{ep.env}/camera", t0, t1)}
+    images = {m.log_time: m.data for m in rec.topic(f"{pre}/camera", t0, t1)}
     for key, per_time, decode in (("movers", movers, lambda a: a), ("mover_boxes", boxes, lambda a: a), ("camera", images, _decode_rgb)):
         if per_time:
             first = per_time[min(per_time)]
@@ -135,24 +149,28 @@ def _lidar(info: dict):
 
 
 def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10.0, stride: int = 1, dpi: int = 80) -> Path:
-    """Animate episode ``ep`` of ``rec`` to ``out`` (.gif with Pillow, .mp4 with ffmpeg)."""
+    """Animate episode ``ep`` of ``rec`` to ``out`` (.gif with Pillow, .mp4 with ffmpeg); with several robots per
+    env, every robot with its goal, rays and trail in its colour, and the team's reward."""
     from matplotlib import animation
     from matplotlib.figure import Figure
 
     from matplotlib.collections import LineCollection
 
     from ..render import draw_goal, draw_obstacles, draw_rays, draw_robots
+    from .scene import ROBOT_PALETTE
 
     out = Path(out)
     info = rec.info
     lidar = _lidar(info)
     radius = float(info.get("robot_radius", 0.2))
     tol = float(info.get("goal_tolerance", 0.3))
-    fr = episode_frames(rec, ep)
+    robots = [r["robot"] for r in ep.robots] if ep.robots is not None else [None]  # None: the env's only robot
+    frs = [episode_frames(rec, ep, j) for j in robots]
+    fr = frs[0]  # the time axis, movers and camera (one robot per env)
     if len(fr["pose"]) == 0:
         raise ValueError(f"episode {ep.episode} of env {ep.env} has no frames in {rec.path}")
     world = ep.start["world"]
-    goal = np.asarray(ep.start["goal"], dtype=float).reshape(-1, 2) if "goal" in ep.start else np.zeros((0, 2))
+    goal = np.asarray(ep.start.get("goal", ep.start.get("goals", [])), dtype=float).reshape(-1, 2)  # one per robot
     line_task = len(goal) == 0  # line following: track, path and robot on a dark floor; rays only for the distance sensor
     show_rays = not line_task or _distance_sensor_on(info)
     tapes = scene_lines(rec, ep)
@@ -166,12 +184,13 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
     ax, axr = fig.add_subplot(1, n_panels, 1), fig.add_subplot(1, n_panels, 2)
     axc = fig.add_subplot(1, n_panels, 3) if cam is not None else None
     axr2 = axr.twinx()
-    pts = np.concatenate([np.asarray(world["segments"], dtype=float).reshape(-1, 2), fr["pose"][:, :2], goal,
+    pts = np.concatenate([np.asarray(world["segments"], dtype=float).reshape(-1, 2), *(f["pose"][:, :2] for f in frs), goal,
                           *(t["segments"].reshape(-1, 2) for t in tapes.values())])
     pad = 0.15 if line_task else 0.5
     lo, hi = pts.min(0) - pad, pts.max(0) + pad
-    cum = np.cumsum(fr["reward"])
-    trail_color = "tab:orange" if line_task else "tab:blue"
+    reward = np.sum([f["reward"] for f in frs], 0)  # several robots: the team's
+    cum = np.cumsum(reward)
+    colors = ["tab:orange" if line_task else "tab:blue"] if robots == [None] else [ROBOT_PALETTE[j % len(ROBOT_PALETTE)] for j in robots]
 
     def draw(k: int):
         i = idx[k]
@@ -188,30 +207,38 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
         if line_task:
             ax.set_facecolor("0.25")
         draw_obstacles(ax, world["segments"], world["circles"], world["boxes"])
-        if len(goal):
+        if len(goal) == 1:
             draw_goal(ax, goal, env=0, radius=tol)
-        ax.plot(fr["pose"][: i + 1, 0], fr["pose"][: i + 1, 1], "-", color=trail_color, lw=1.2, alpha=0.8, zorder=3)
-        if show_rays and fr["ranges"].ndim == 2 and fr["ranges"].shape[1] == lidar.n_rays:
-            draw_rays(ax, fr["pose"][i : i + 1], fr["ranges"][i : i + 1], lidar, env=0)
+        elif len(goal):
+            for g, c in zip(goal, colors):
+                draw_goal(ax, g[None], env=0, radius=tol, color=c)
+        for f, c in zip(frs, colors):
+            ax.plot(f["pose"][: i + 1, 0], f["pose"][: i + 1, 1], "-", color=c, lw=1.2, alpha=0.8, zorder=3)
+            if show_rays and f["ranges"].ndim == 2 and f["ranges"].shape[1] == lidar.n_rays:
+                draw_rays(ax, f["pose"][i : i + 1], f["ranges"][i : i + 1], lidar, env=0)
         if "movers" in fr:
             boxes = fr["mover_boxes"][i][:, [0, 1, 4, 5, 6]] if "mover_boxes" in fr else np.zeros((0, 5))
             draw_obstacles(ax, np.zeros((0, 4)), fr["movers"][i][:, [0, 1, 4]], boxes, color="#d23c3c")
-        draw_robots(ax, fr["pose"][i : i + 1], radius, env=0)
+        if robots == [None]:
+            draw_robots(ax, fr["pose"][i : i + 1], radius, env=0)
+        else:
+            for f, c in zip(frs, colors):
+                draw_robots(ax, f["pose"][i : i + 1], radius, env=0, color=c)
         if axc is not None:
             axc.clear()
             axc.imshow(cam[i], interpolation="nearest")
             axc.set(xticks=[], yticks=[], title="camera")
         ax.set_title(f"env {ep.env} episode {ep.episode}: {ep.outcome}  t={fr['time'][i]:.1f} s", fontsize=9)
         axr.clear()
-        axr.plot(fr["time"], fr["reward"], color="0.6", lw=1, label="reward")
-        axr.plot(fr["time"][: i + 1], fr["reward"][: i + 1], color="tab:red", lw=1.2)
+        axr.plot(fr["time"], reward, color="0.6", lw=1, label="reward")
+        axr.plot(fr["time"][: i + 1], reward[: i + 1], color="tab:red", lw=1.2)
         axr2.clear()
         axr2.plot(fr["time"][: i + 1], cum[: i + 1], color="tab:purple", lw=1.2)
         axr2.set_ylim(min(cum.min(), 0) - 1e-3, max(cum.max(), 0) + 1e-3)
         axr2.set_ylabel("return", color="tab:purple", fontsize=8)
         axr.axvline(fr["time"][i], color="k", lw=0.8)
         axr.set_xlabel("time in episode [s]")
-        axr.set_ylabel("reward per step", color="tab:red", fontsize=8)
+        axr.set_ylabel("reward per step" if robots == [None] else "team reward per step (sum)", color="tab:red", fontsize=8)
         axr.set_xlim(0, max(fr["time"][-1], 1e-3))
         return []
 

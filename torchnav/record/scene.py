@@ -3,7 +3,9 @@
 Kept free of tensors: it receives numpy rows of one step of one env (see
 ``EpisodeRecorder._select`` for the keys). The static part of the scene (walls,
 boxes, circles, goal) is encoded once per episode and spliced into every step's
-``SceneUpdate``, so a step costs a handful of small ``json.dumps``.
+``SceneUpdate``, so a step costs a handful of small ``json.dumps``. ``MultiEnvStream`` does the
+same for an env of several robots, with the per-robot pieces (transforms, scan, disc, trail,
+odometry) built by the same functions.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ COLORS = {
     "arrow": (0.0, 0.0, 0.0, 1.0), "estimate": (0.96, 0.62, 0.0, 1.0), "mover": (0.82, 0.24, 0.24, 1.0),
 }
 MOVER_HEIGHT = 1.0  # m, only for the 3D view
+_SHARED = {"odom_estimate": "odom", "camera_depth": "camera"}  # topics that use another topic's schema
 _EMPTY = {"arrows": [], "cubes": [], "spheres": [], "cylinders": [], "lines": [], "triangles": [], "texts": [], "models": []}
 
 
@@ -79,15 +82,81 @@ def entity(ns: int, frame: str, ident: str, **prims: list) -> dict:
             "frame_locked": False, "metadata": [], **_EMPTY, **prims}
 
 
+ROBOT_PALETTE = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16), (0.58, 0.4, 0.74),
+                 (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5), (0.74, 0.74, 0.13), (0.09, 0.75, 0.81))  # robot j: j % 10
+
+
+def robot_rgba(j: int, alpha: float = 1.0) -> dict:
+    """Robot ``j``'s colour in a multi-robot scene (robot 0 has the single robot's)."""
+    r, g, b = ROBOT_PALETTE[j % len(ROBOT_PALETTE)]
+    return {"r": r, "g": g, "b": b, "a": alpha}
+
+
+def transforms(ts: dict, frame: str, base: str, laser: str, x: float, y: float, yaw: float, laser_tf: tuple) -> list[dict]:
+    """The ``frame`` -> ``base`` (the robot's pose) and ``base`` -> ``laser`` (``lidar.offset``) transforms."""
+    ox, oy, oyaw = laser_tf
+    return [
+        {"timestamp": ts, "parent_frame_id": frame, "child_frame_id": base,
+         "translation": {"x": x, "y": y, "z": 0.0}, "rotation": pose(0, 0, yaw)["orientation"]},
+        {"timestamp": ts, "parent_frame_id": base, "child_frame_id": laser,
+         "translation": {"x": ox, "y": oy, "z": ROBOT_HEIGHT}, "rotation": pose(0, 0, oyaw)["orientation"]},
+    ]
+
+
+def scan_head(laser: str, lidar: Any) -> dict:
+    """The fixed part of a ``foxglove.LaserScan`` in frame ``laser`` (the lidar's first and last ray angles)."""
+    ang = lidar.angles()
+    return {"frame_id": laser, "pose": pose(0.0, 0.0), "start_angle": ang[0], "end_angle": ang[-1]}
+
+
+def laser_scan(ts: dict, head: dict, ranges: np.ndarray) -> dict:
+    return {"timestamp": ts, **head, "ranges": np.round(ranges.astype(np.float64), 5).tolist(), "intensities": []}
+
+
+def robot_entity(t: int, frame: str, ident: str, x: float, y: float, yaw: float, radius: float, rgba: dict) -> dict:
+    """A robot disc of ``radius`` m with its heading arrow."""
+    return entity(t, frame, ident, cylinders=[{**cylinder(x, y, 2 * radius, ROBOT_HEIGHT, "robot", yaw), "color": rgba}], arrows=[{
+        "pose": pose(x, y, yaw, ROBOT_HEIGHT + 0.01), "shaft_length": radius, "shaft_diameter": 0.04,
+        "head_length": 0.1, "head_diameter": 0.1, "color": color("arrow")}])
+
+
+def odometry(ts: dict, frame: str, body: str, at: dict, vel: tuple[float, float]) -> dict:
+    """A ``foxglove.Odometry``: the pose ``at`` of ``body`` in ``frame`` with the twist ``vel`` (m/s, rad/s)."""
+    return {"timestamp": ts, "frame_id": frame, "body_frame_id": body, "pose": at,
+            "linear_velocity": {"x": _f(vel[0]), "y": 0.0, "z": 0.0}, "angular_velocity": {"x": 0.0, "y": 0.0, "z": _f(vel[1])},
+            "pose_covariance": [0.0] * 36, "velocity_covariance": [0.0] * 36, "metadata": []}
+
+
+class Trail:
+    """One robot's path so far, as JSON points: every ``stride``-th step, halving the resolution when it grows too long."""
+
+    MAX = 256  # points; longer trails keep every 2nd, 4th, ... point
+
+    def __init__(self) -> None:
+        self.points: list[str] = []
+        self.stride = 1
+
+    def add(self, x: float, y: float, step: int) -> None:
+        if step % self.stride == 0:
+            self.points.append(f'{{"x":{x},"y":{y},"z":0.02}}')
+            if len(self.points) > self.MAX:
+                self.points, self.stride = self.points[::2], self.stride * 2
+
+    def entity(self, t: int, frame: str, ident: str, x: float, y: float, rgba: dict) -> str:
+        """The trail as a LINE_STRIP entity (JSON) ending at the robot's current point ``(x, y)``."""
+        last = f'{{"x":{x},"y":{y},"z":0.02}}'
+        return json.dumps(entity(t, frame, ident, lines=[{
+            "type": 0, "pose": pose(0.0, 0.0), "thickness": 0.04, "scale_invariant": False, "points": "@PTS@",
+            "color": rgba, "colors": [], "indices": []}])).replace('"@PTS@"', "[" + ",".join(self.points + [last]) + "]")
+
+
 class EnvStream:
     """Encoder state of one recorded env: clock, episode counters, trail, static scene."""
-
-    MAX_TRAIL = 256  # points; longer trails keep every 2nd, 4th, ... point
 
     def __init__(self, env_index: int, env: Any, rec: Any):
         self.env = env_index
         self.rec = rec
-        self.channels: dict[str, int] = {}
+        self.channels: dict[str, Any] = {}
         self.frame = f"env{env_index}/world"
         # every env's world hangs off one root frame, side by side, so that a viewer can place
         # any recorded env in any other's view (no "missing transform" between env trees)
@@ -96,9 +165,8 @@ class EnvStream:
         self.laser = f"env{env_index}/laser"
         self.radius = float(env.cfg.robot.radius)
         self.goal_tol = float(getattr(env.cfg, "goal_tolerance", 0.0))
-        li = env.task.params.lidar
-        ang = li.angles()
-        self.scan_head = {"frame_id": self.laser, "pose": pose(0.0, 0.0), "start_angle": ang[0], "end_angle": ang[-1]}
+        li = rec.lidar
+        self.scan_head = scan_head(self.laser, li)
         self.laser_tf = (li.offset[0], li.offset[1], li.offset[2])
         # fallback world when the env has no state to read worlds from: the map's fixed obstacles
         # (NavTask on a map; None on procedural worlds, whose worlds always come with the state)
@@ -113,8 +181,11 @@ class EnvStream:
         self.finished_episodes = 0
         self.steps_written = 0
         self.static = ""
-        self.trail: list[str] = []
-        self.trail_stride = 1
+        self.trail = Trail()
+
+    def topic_kinds(self) -> list[tuple[str, str]]:
+        """``(topic under /env{i}/, kind of message)`` of every channel of this env (the kinds are ``rec.schemas()``'s keys)."""
+        return [(name, _SHARED.get(name, name)) for name in self.rec.topics]
 
     @property
     def t(self) -> int:
@@ -123,12 +194,22 @@ class EnvStream:
     def _add(self, name: str, msg: dict | str) -> None:
         self.rec.add_message(self.channels[name], self.t, msg if isinstance(msg, str) else json.dumps(msg))
 
+    def _limit_reached(self) -> bool:
+        lim = self.rec.max_episodes
+        return lim is not None and self.finished_episodes >= lim
+
+    def _ended(self) -> bool:
+        """Close the episode in progress: the reset takes one tick, so the next start is strictly later."""
+        self.in_episode = False
+        self.finished_episodes += 1
+        self.clock += 1
+        return True
+
     # -- one step ---------------------------------------------------------------------------
 
     def step(self, r: dict[str, np.ndarray]) -> bool:
         """Encode one step of this env; True if its episode ended here."""
-        lim = self.rec.max_episodes
-        if lim is not None and self.finished_episodes >= lim:
+        if self._limit_reached():
             return False
         if not self.in_episode:
             self._start(r)
@@ -160,33 +241,37 @@ class EnvStream:
             if kind == "terminated":
                 event["reason"] = next((k for k in self.rec.end_reasons if bool(r[f"reason_{k}"])), "other")
             self._add("events", event)
-            self.in_episode = False
-            self.finished_episodes += 1
-            self.clock += 1  # the reset takes one tick, so the next start is strictly later
-            return True
+            return self._ended()
         return False
 
-    def _start(self, r: dict[str, np.ndarray]) -> None:
-        self.episode += 1
-        self.in_episode = True
-        self.ep_step, self.ep_return = 0, 0.0
-        self.goal = (float(r["goal"][0]), float(r["goal"][1]))
+    def _world(self, r: dict[str, np.ndarray]) -> tuple[list, list, list, bool]:
+        """The episode's walls, circles and boxes as rows, and whether they are only the map's fixed obstacles."""
         keys = ("segments", "segment_mask", "circles", "circle_mask", "boxes", "box_mask")
         fixed_only = "segments" not in r
         if fixed_only:
             world = {k: getattr(self.base_world, k)[self.env].detach().cpu().numpy() for k in keys}
         else:
             world = {k: r[k] for k in keys}
-        seg = _rows(world["segments"], world["segment_mask"])
-        cir = _rows(world["circles"], world["circle_mask"])
-        box = _rows(world["boxes"], world["box_mask"])
+        return (_rows(world["segments"], world["segment_mask"]), _rows(world["circles"], world["circle_mask"]),
+                _rows(world["boxes"], world["box_mask"]), fixed_only)
+
+    def _begin(self, r: dict[str, np.ndarray]) -> dict:
+        """Start a new episode: counters, the static scene; returns the start event's ``world``."""
+        self.episode += 1
+        self.in_episode = True
+        self.ep_step, self.ep_return = 0, 0.0
+        seg, cir, box, fixed_only = self._world(r)
         self.static = ",".join(json.dumps(e) for e in self._static_entities(seg, cir, box))
-        self.trail, self.trail_stride = [], 1
+        # rows flattened: Foxglove's and Lichtblick's JSON-schema parsers reject arrays of arrays
+        return {"segments": sum(seg, []), "circles": sum(cir, []), "boxes": sum(box, []), "fixed_only": fixed_only}
+
+    def _start(self, r: dict[str, np.ndarray]) -> None:
+        self.goal = (float(r["goal"][0]), float(r["goal"][1]))
+        world = self._begin(r)
+        self.trail = Trail()
         p0 = r["pose0"]
         start = {"env": self.env, "episode": self.episode, "event": "start",
-                 "start": [_f(x) for x in p0], "goal": [_f(x) for x in self.goal],
-                 # rows flattened: Foxglove's and Lichtblick's JSON-schema parsers reject arrays of arrays
-                 "world": {"segments": sum(seg, []), "circles": sum(cir, []), "boxes": sum(box, []), "fixed_only": fixed_only}}
+                 "start": [_f(x) for x in p0], "goal": [_f(x) for x in self.goal], "world": world}
         if not self.rec.optional["goal"]:
             del start["goal"]
         self._add("events", start)
@@ -200,11 +285,19 @@ class EnvStream:
             entity(t, self.frame, "boxes", cubes=cubes),
             entity(t, self.frame, "circles", cylinders=[cylinder(c[0], c[1], 2 * c[2], WALL_HEIGHT, "circle") for c in cir]),
         ]
-        if self.rec.optional["goal"]:
-            out.append(entity(t, self.frame, "goal", cylinders=[cylinder(*self.goal, 2 * self.goal_tol, 0.02, "goal")]))
+        out += self._goal_entities(t)
         for name, spec in self.rec.scene_lines.items():
             out.append(entity(t, self.frame, name, lines=[line_list(spec["segments"], spec["thickness"], spec["color"])]))
         return out
+
+    def _goal_entities(self, t: int) -> list[dict]:
+        if not self.rec.optional["goal"]:
+            return []
+        return [entity(t, self.frame, "goal", cylinders=[cylinder(*self.goal, 2 * self.goal_tol, 0.02, "goal")])]
+
+    def _root_tf(self, ts: dict) -> dict:
+        return {"timestamp": ts, "parent_frame_id": ROOT_FRAME, "child_frame_id": self.frame,
+                "translation": {"x": self.offset_x, "y": 0.0, "z": 0.0}, "rotation": pose(0, 0, 0.0)["orientation"]}
 
     def _sensors(self, r: dict[str, np.ndarray]) -> None:
         """IMU reading, camera images and movers of the state after the step, if recorded."""
@@ -234,28 +327,11 @@ class EnvStream:
         """tf, scan, scene and odometry of the state at the current tick."""
         x, y, yaw = _f(p[0]), _f(p[1]), _f(p[2])
         ts = stamp(self.t)
-        ox, oy, oyaw = self.laser_tf
-        self._add("tf", {"transforms": [
-            {"timestamp": ts, "parent_frame_id": ROOT_FRAME, "child_frame_id": self.frame,
-             "translation": {"x": self.offset_x, "y": 0.0, "z": 0.0}, "rotation": pose(0, 0, 0.0)["orientation"]},
-            {"timestamp": ts, "parent_frame_id": self.frame, "child_frame_id": self.base,
-             "translation": {"x": x, "y": y, "z": 0.0}, "rotation": pose(0, 0, yaw)["orientation"]},
-            {"timestamp": ts, "parent_frame_id": self.base, "child_frame_id": self.laser,
-             "translation": {"x": ox, "y": oy, "z": ROBOT_HEIGHT}, "rotation": pose(0, 0, oyaw)["orientation"]},
-        ]})
-        self._add("scan", {"timestamp": ts, **self.scan_head, "ranges": np.round(ranges.astype(np.float64), 5).tolist(), "intensities": []})
-        # trail: keep every stride-th point, halving the resolution when it grows too long
-        if self.ep_step % self.trail_stride == 0:
-            self.trail.append(f'{{"x":{x},"y":{y},"z":0.02}}')
-            if len(self.trail) > self.MAX_TRAIL:
-                self.trail, self.trail_stride = self.trail[::2], self.trail_stride * 2
-        robot = entity(self.t, self.frame, "robot", cylinders=[cylinder(x, y, 2 * self.radius, ROBOT_HEIGHT, "robot", yaw)], arrows=[{
-            "pose": pose(x, y, yaw, ROBOT_HEIGHT + 0.01), "shaft_length": self.radius, "shaft_diameter": 0.04,
-            "head_length": 0.1, "head_diameter": 0.1, "color": color("arrow")}])
-        last = f'{{"x":{x},"y":{y},"z":0.02}}'
-        trail = json.dumps(entity(self.t, self.frame, "trail", lines=[{
-            "type": 0, "pose": pose(0.0, 0.0), "thickness": 0.04, "scale_invariant": False, "points": "@PTS@",
-            "color": color("trail"), "colors": [], "indices": []}])).replace('"@PTS@"', "[" + ",".join(self.trail + [last]) + "]")
+        self._add("tf", {"transforms": [self._root_tf(ts), *transforms(ts, self.frame, self.base, self.laser, x, y, yaw, self.laser_tf)]})
+        self._add("scan", laser_scan(ts, self.scan_head, ranges))
+        self.trail.add(x, y, self.ep_step)
+        robot = robot_entity(self.t, self.frame, "robot", x, y, yaw, self.radius, color("robot"))
+        trail = self.trail.entity(self.t, self.frame, "trail", x, y, color("trail"))
         extra = ""
         if odom is not None:  # the odometry estimate as a scene arrow too: viewers without foxglove.Odometry still draw it
             extra = "," + json.dumps(entity(self.t, self.frame, "estimate", arrows=[{
@@ -267,11 +343,106 @@ class EnvStream:
                 cylinder(c[0], c[1], 2 * c[4], MOVER_HEIGHT, "mover") for c in _rows(movers, exists & ~box)], cubes=[
                 cube(c[0], c[1], c[6], c[7], c[8], MOVER_HEIGHT, "mover") for c in _rows(movers, exists & box)]))
         self._add("scene", '{"deletions":[],"entities":[' + self.static + "," + json.dumps(robot) + "," + trail + extra + "]}")
-        def odometry(body: str, at: dict) -> dict:  # the true pose and the odometry estimate, with the applied twist
-            return {"timestamp": ts, "frame_id": self.frame, "body_frame_id": body, "pose": at,
-                    "linear_velocity": {"x": _f(vel[0]), "y": 0.0, "z": 0.0}, "angular_velocity": {"x": 0.0, "y": 0.0, "z": _f(vel[1])},
-                    "pose_covariance": [0.0] * 36, "velocity_covariance": [0.0] * 36, "metadata": []}
-
-        self._add("odom", odometry(self.base, pose(x, y, yaw)))
+        self._add("odom", odometry(ts, self.frame, self.base, pose(x, y, yaw), vel))
         if odom is not None:
-            self._add("odom_estimate", odometry(f"{self.base}_estimate", pose(_f(odom[0]), _f(odom[1]), _f(odom[2]))))
+            self._add("odom_estimate", odometry(ts, self.frame, f"{self.base}_estimate", pose(_f(odom[0]), _f(odom[1]), _f(odom[2])), vel))
+
+
+class MultiEnvStream(EnvStream):
+    """Encoder state of one recorded env of several robots (``MultiNavEnv``): one clock and episode
+    counter for the env, and per robot slot ``j`` its frames ``env{i}/robot{j}/base_link`` and
+    ``.../laser``, topics ``/env{i}/robot{j}/{scan, odom, action, reward}``, goal, trail and path length.
+    The env's ``tf``, ``scene`` and ``events`` carry every present robot (docs/foxglove.md)."""
+
+    ROBOT_TOPICS = ("scan", "odom", "action", "reward")
+
+    def __init__(self, env_index: int, env: Any, rec: Any):
+        super().__init__(env_index, env, rec)
+        self.n = int(env.n_robots)
+        self.bases = [f"env{env_index}/robot{j}/base_link" for j in range(self.n)]
+        self.lasers = [f"env{env_index}/robot{j}/laser" for j in range(self.n)]
+        self.heads = [scan_head(laser, rec.lidar) for laser in self.lasers]
+        self.present: list[int] = []
+
+    def topic_kinds(self) -> list[tuple[str, str]]:
+        return [(k, k) for k in ("tf", "scene", "events")] + [(f"robot{j}/{k}", k) for j in range(self.n) for k in self.ROBOT_TOPICS]
+
+    def step(self, r: dict[str, np.ndarray]) -> bool:
+        if self._limit_reached():
+            return False
+        if not self.in_episode:
+            self._start(r)
+        for j in self.present:
+            v, w = float(r["vel1"][j, 0]), float(r["vel1"][j, 1])
+            self._add(f"robot{j}/action", {"env": self.env, "robot": j, "episode": self.episode, "step": self.ep_step,
+                                           "v": _f(v), "omega": _f(w), "action": [_f(x) for x in r["action"][j]]})
+        self.clock += 1
+        self.ep_step += 1
+        self.steps_written += 1
+        p1 = r["pose1"]
+        for j in self.present:
+            if not self.parked[j]:
+                self.path[j] += math.hypot(p1[j, 0] - self.last[j][0], p1[j, 1] - self.last[j][1])
+                self.steps[j] = self.ep_step
+            self.last[j] = (float(p1[j, 0]), float(p1[j, 1]))
+        self._frame(p1, r["ranges1"], r["vel1"])
+        for j in self.present:
+            terms = {k: _f(x) for k, x in zip(self.rec.term_names, r["terms"][j])} if "terms" in r else {}
+            self._add(f"robot{j}/reward", {
+                "env": self.env, "robot": j, "episode": self.episode, "step": self.ep_step, "reward": _f(r["reward"][j]),
+                "return": _f(r["ret"][j]), "v": _f(r["vel1"][j, 0]), "omega": _f(r["vel1"][j, 1]), "terms": terms,
+                "curriculum_radius": _f(r["radius"]), "goal_distance": _f(math.hypot(p1[j, 0] - self.goals[j][0], p1[j, 1] - self.goals[j][1])),
+                "success": bool(r["success"][j]), "collision": bool(r["collision"][j]), "robot_collision": bool(r["robot_collision"][j])})
+            self.parked[j] = bool(r["arrived"][j] or r["crashed"][j])
+        if not (bool(r["terminated"]) or bool(r["truncated"])):
+            return False
+        team = bool(r["team_success"])
+        outcomes = []
+        for j in self.present:
+            # a robot still driving when its env ended: the time limit, or (robots.on_collision: team) another robot's collision
+            kind = "success" if r["arrived"][j] else "collision" if r["crashed"][j] else "timeout" if bool(r["truncated"]) else "ended"
+            outcomes.append({"robot": j, "outcome": kind, "steps": self.steps[j], "return": _f(r["ret"][j]),
+                             "path_length": _f(self.path[j]), "straight_line": _f(self.straight[j])})
+        self.ep_return = float(sum(float(r["ret"][j]) for j in self.present))
+        kind = "success" if team else "timeout" if bool(r["truncated"]) else "collision"
+        self._add("events", {"env": self.env, "episode": self.episode, "event": kind, "steps": self.ep_step,
+                             "return": _f(self.ep_return), "team_success": team, "outcomes": outcomes})
+        return self._ended()
+
+    def _start(self, r: dict[str, np.ndarray]) -> None:
+        self.present = [int(j) for j in np.flatnonzero(r["present"])]
+        p0, g = r["pose0"], r["goal"]
+        self.goals = {j: (float(g[j, 0]), float(g[j, 1])) for j in self.present}
+        world = self._begin(r)
+        self.trails = {j: Trail() for j in self.present}
+        self.parked = {j: False for j in self.present}
+        self.path = {j: 0.0 for j in self.present}
+        self.steps = {j: 0 for j in self.present}
+        self.last = {j: (float(p0[j, 0]), float(p0[j, 1])) for j in self.present}
+        self.straight = {j: math.hypot(self.goals[j][0] - p0[j, 0], self.goals[j][1] - p0[j, 1]) for j in self.present}
+        self._add("events", {"env": self.env, "episode": self.episode, "event": "start", "robots": self.present,
+                             "starts": [_f(x) for j in self.present for x in p0[j]],
+                             "goals": [_f(x) for j in self.present for x in self.goals[j]], "world": world})
+        self._frame(p0, r["ranges0"], np.zeros_like(p0[:, :2]))
+
+    def _goal_entities(self, t: int) -> list[dict]:
+        return [entity(t, self.frame, f"goal{j}", cylinders=[{**cylinder(*self.goals[j], 2 * self.goal_tol, 0.02, "goal"), "color": robot_rgba(j, 0.6)}])
+                for j in self.present]
+
+    def _frame(self, p: np.ndarray, ranges: np.ndarray, vel: np.ndarray) -> None:
+        """tf, every present robot's scan and odometry, and the scene, at the current tick: ``p`` ``(N, 3)``,
+        ``ranges`` ``(N, R)`` m, ``vel`` ``(N, 2)`` (m/s, rad/s)."""
+        ts = stamp(self.t)
+        tfs, ents = [self._root_tf(ts)], []
+        for j in self.present:
+            x, y, yaw = _f(p[j, 0]), _f(p[j, 1]), _f(p[j, 2])
+            tfs += transforms(ts, self.frame, self.bases[j], self.lasers[j], x, y, yaw, self.laser_tf)
+            self.trails[j].add(x, y, self.ep_step)
+            ents += [json.dumps(robot_entity(self.t, self.frame, f"robot{j}", x, y, yaw, self.radius, robot_rgba(j))),
+                     self.trails[j].entity(self.t, self.frame, f"trail{j}", x, y, robot_rgba(j, 0.8))]
+        self._add("tf", {"transforms": tfs})
+        self._add("scene", '{"deletions":[],"entities":[' + ",".join([self.static, *ents]) + "]}")
+        for j in self.present:
+            self._add(f"robot{j}/scan", laser_scan(ts, self.heads[j], ranges[j]))
+            at = pose(_f(p[j, 0]), _f(p[j, 1]), _f(p[j, 2]))
+            self._add(f"robot{j}/odom", odometry(ts, self.frame, self.bases[j], at, (float(vel[j, 0]), float(vel[j, 1]))))

@@ -179,8 +179,12 @@ def _message(title: str, description: str, required: list[str], properties: dict
     return {"title": title, "description": description, "type": "object", "properties": properties, "required": required}
 
 
-def action_schema(action_dim: int) -> dict:
-    return _message("torchnav.Action", "The policy's action and the twist it commands (recorded at the time of the state it was chosen in)",
+_ROBOT = {**_INT, "description": "robot slot in the env (several robots per env only)"}
+
+
+def action_schema(action_dim: int, robots: bool = False) -> dict:
+    """``robots``: the messages of a multi-robot recording, which name their ``robot``."""
+    return _with_robot(robots, _message("torchnav.Action", "The policy's action and the twist it commands (recorded at the time of the state it was chosen in)",
                     ["env", "episode", "step", "v", "omega", "action"], {
         "env": {**_INT, "description": "index of the env in the batch"},
         "episode": {**_INT, "description": "episode number of this env in the file, from 0"},
@@ -189,12 +193,20 @@ def action_schema(action_dim: int) -> dict:
         "omega": {**_NUM, "description": "applied turn rate, rad/s (CCW positive)"},
         "action": {"type": "array", "items": _NUM, "minItems": action_dim, "maxItems": action_dim,
                    "description": "raw policy output (continuous in [-1, 1], or one-hot)"},
-    })
+    }))
 
 
-def reward_schema(term_names: Sequence[str]) -> dict:
+def _with_robot(robots: bool, schema: dict, **extra: dict) -> dict:
+    """``schema`` with the ``robot`` field (required) and ``extra`` properties when ``robots``, else as it is."""
+    if robots:
+        schema["properties"] = {"robot": _ROBOT, **schema["properties"], **extra}
+        schema["required"] = ["robot", *schema["required"]]
+    return schema
+
+
+def reward_schema(term_names: Sequence[str], robots: bool = False) -> dict:
     terms = {k: {**_NUM, "description": f"weighted reward term '{k}' of this step"} for k in term_names}
-    return _message("torchnav.Reward", "Reward of one step, split into its terms (recorded at the time of the state it led to)",
+    return _with_robot(robots, _message("torchnav.Reward", "Reward of one step, split into its terms (recorded at the time of the state it led to)",
                     ["env", "episode", "step", "reward", "return", "v", "omega", "terms", "curriculum_radius"], {
         "env": _INT, "episode": _INT,
         "step": {**_INT, "description": "steps done in this episode, from 1"},
@@ -206,7 +218,7 @@ def reward_schema(term_names: Sequence[str]) -> dict:
         "curriculum_radius": {**_NUM, "description": "goal-distance curriculum radius, m"},
         "goal_distance": {**_NUM, "description": "distance from the robot centre to the goal, m"},
         "success": {"type": "boolean"}, "collision": {"type": "boolean"},
-    })
+    }), robot_collision={"type": "boolean", "description": "the step's collision was with another robot"})
 
 
 def imu_schema() -> dict:
@@ -234,11 +246,16 @@ def movers_schema() -> dict:
 EVENT_KINDS = ("start", "success", "collision", "timeout", "terminated")
 
 
-def event_schema() -> dict:
+ROBOT_OUTCOMES = ("success", "collision", "timeout", "ended")  # a robot's end in a multi-robot episode ("ended": another's collision ended the team's)
+
+
+def event_schema(robots: bool = False) -> dict:
+    """``robots``: the events of a multi-robot recording (start: ``robots``, ``starts``, ``goals``; end:
+    ``team_success`` and each robot's ``outcomes``)."""
     def rows(width: int, what: str) -> dict:
         return {"type": "array", "items": _NUM, "description": f"{what}, {width} numbers each, one after the other"}
 
-    return _message("torchnav.EpisodeEvent", "Start or end of an episode of one env. Start events carry the episode's world.",
+    schema = _message("torchnav.EpisodeEvent", "Start or end of an episode of one env. Start events carry the episode's world.",
                     ["env", "episode", "event"], {
         "env": _INT, "episode": _INT,
         "event": {"type": "string", "enum": list(EVENT_KINDS)},
@@ -255,6 +272,23 @@ def event_schema() -> dict:
                            "boxes": rows(5, "boxes [cx, cy, half_x, half_y, yaw]"), "fixed_only": {"type": "boolean"}},
         },
     })
+    if robots:
+        del schema["properties"]["start"], schema["properties"]["goal"], schema["properties"]["path_length"], schema["properties"]["straight_line"]
+        schema["description"] = "Start or end of an episode of one env of several robots. Start events carry the episode's world."
+        schema["properties"].update({
+            "robots": {"type": "array", "items": _INT, "description": "start: the robot slots present in the episode"},
+            "starts": rows(3, "start: the present robots' start poses [x m, y m, yaw rad], in the order of robots"),
+            "goals": rows(2, "start: the present robots' goals [x m, y m], in the order of robots"),
+            "team_success": {"type": "boolean", "description": "end: every present robot reached its goal"},
+            "outcomes": {"type": "array", "description": "end: one per present robot", "items": {
+                "type": "object", "required": ["robot", "outcome", "steps", "return"], "properties": {
+                    "robot": _INT, "outcome": {"type": "string", "enum": list(ROBOT_OUTCOMES)},
+                    "steps": {**_INT, "description": "steps until it parked (at its goal or collided), else the episode's"},
+                    "return": _NUM, "path_length": {**_NUM, "description": "m driven"},
+                    "straight_line": {**_NUM, "description": "start-goal distance, m"}}}},
+        })
+        schema["properties"]["return"] = {**_NUM, "description": "end: the sum of the present robots' returns"}
+    return schema
 
 
 # -- a small validator -----------------------------------------------------------------------
