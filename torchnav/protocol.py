@@ -30,7 +30,6 @@ class TaskProtocol:
     env_class: type = BatchedEnv
     outcome_keys: tuple[str, ...] = ()  # flags of finished training episodes behind the train/<flag>_rate figures
     outcomes: tuple[str, ...] = ()  # evaluation outcomes shown on one line; the first one's rate is the score
-    records = True  # whether record() writes MCAP episodes of the task
 
     def __init__(self, config: Any, eval_config: Any = None, **env_options: Any) -> None:
         self.config, self.env_options = config, env_options
