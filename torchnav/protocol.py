@@ -16,7 +16,7 @@ from typing import Any, Callable
 from .config import to_dict
 from .envs import LineEnv, MultiNavEnv, NavEnv
 from .envs.base import BatchedEnv
-from .evaluation import (eval_config, format_lap_summary, format_summary, outcome_letters, record_to_file, record_with, run_episodes, run_line_episodes,
+from .evaluation import (bind_policy, eval_config, format_lap_summary, format_summary, outcome_letters, record_to_file, record_with, run_episodes, run_line_episodes,
                          summarize, summarize_laps)
 from .tasks import LineConfig, MultiNavConfig, NavConfig
 
@@ -183,11 +183,12 @@ class MultiNavProtocol(TaskProtocol):
 
     def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
         """``policy``: a TensorDict module reading ``"observation"`` ``(..., D)`` and writing ``"action"``
-        (``torchnav.policy.to_policy``), applied to every robot's observation ``(E, N, D)``."""
+        (``torchnav.policy.to_policy``), applied to the agent group ``td["agents"]`` (batch ``(E, N)``: every
+        robot's observation, and the pose, goal, ranges, ... that a classical controller reads)."""
         import torch
-        from tensordict import TensorDict
 
         env = self.eval_env(int(episodes), device, seed)
+        bind_policy(policy, env)
         td = env.reset()
         E, N = env.num_envs, env.n_robots
         finished = torch.zeros(E, dtype=torch.bool, device=env.device)
@@ -197,8 +198,7 @@ class MultiNavProtocol(TaskProtocol):
         present = td["agents", "mask"].reshape(E, N).clone()
         with torch.no_grad():
             for _ in range(int(self.config.max_steps) + 1):
-                obs = td["agents", "observation"]
-                act = policy(TensorDict({"observation": obs}, batch_size=obs.shape[:-1]))["action"]
+                act = policy(td["agents"].exclude("action"))["action"]
                 td["agents", "action"] = act
                 nxt = env.step(td)["next"]
                 live = ~finished
