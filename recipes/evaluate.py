@@ -26,8 +26,6 @@ import json
 import sys
 from pathlib import Path
 
-import yaml
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import builders as B  # noqa: E402
 
@@ -36,6 +34,7 @@ from torchnav.controllers import CONTROLLERS, MULTI_CONTROLLERS, make_controller
 from torchnav.evaluation import FINAL_EVAL_SEED, load_episodes  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
 from torchnav.protocol import PROTOCOLS  # noqa: E402
+from torchnav.train_config import parse_override  # noqa: E402
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "td3_arena_actor.pt"
 
@@ -49,17 +48,18 @@ def load_actor(path: Path):
 
 
 def parse_sets(p: argparse.ArgumentParser, flag: str, items: list[str]) -> dict:
-    """``["a.b=1", "c=x"]`` -> ``{"a": {"b": 1}, "c": "x"}`` (values read as YAML); a bad item is a usage error."""
+    """``["a.b=1", "c=x"]`` -> ``{"a": {"b": 1}, "c": "x"}``, values read as the recipes' command lines read
+    them (``parse_override``: ``off`` stays a string); a bad item is a usage error."""
     over: dict = {}
     for kv in items:
         if "=" not in kv:
             p.error(f"{flag} expects KEY=VALUE, got {kv!r}")
-        k, v = kv.split("=", 1)
+        k, v = parse_override(kv)
         node = over
         parts = k.split(".")
         for part in parts[:-1]:
             node = node.setdefault(part, {})
-        node[parts[-1]] = yaml.safe_load(v)
+        node[parts[-1]] = v
     return over
 
 
