@@ -1,9 +1,12 @@
 """ORCA for several differential-drive robots: a decentralised classical baseline of the multi-robot
 task (docs/multi_robot.md, "The classical baseline"; docs/controllers.md, "orca").
 
-Every robot, on its own, picks the velocity nearest to its preferred one (towards its goal) that keeps
-it clear of what it knows about, in the sense of optimal reciprocal collision avoidance (van den Berg
-et al. 2011, RVO2's ``computeNewVelocity``):
+Every robot, on its own, picks the velocity nearest to its preferred one that keeps it clear of what it
+knows about, in the sense of optimal reciprocal collision avoidance (van den Berg et al. 2011, RVO2's
+``computeNewVelocity``). The preferred velocity points at the goal, or, where the lidar shows that way
+blocked, along the open heading nearest to it (``Reactive.steer``, on the scan without the other
+robots), and turns ``keep_right`` clockwise while it would hit another robot within ``time_horizon``:
+a shared rule that breaks the symmetric head-on deadlock of ORCA without randomness. What it avoids:
 
 - **Other robots** (its ``neighbours`` nearest within ``sensing_range``, from their positions and
   velocities) are reciprocal agents: each pair shares the avoidance half and half, over ``time_horizon``.
