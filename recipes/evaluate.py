@@ -137,10 +137,10 @@ def main(argv: list[str]) -> dict:
         p.error(f"--controller {a.controller} drives the {kind!r} task; {ckpt} is a {sp.task!r} policy")
     over = parse_sets(p, "--set", a.set)
     P = PROTOCOLS[task_name]
-    what = ckpt if sp is not None else f"the {task_name!r} task's defaults"
+    what = f"{ckpt} is a {task_name!r} policy" if a.controller is None else f"--controller {a.controller} drives the {task_name!r} task"
     for flag, used, task_kind in (("--laps", a.laps is not None, "line"), ("--curriculum", a.curriculum, "nav"), ("--episodes-file", given is not None, "nav")):
         if used and task_name != task_kind:
-            p.error(f"{flag} is for {'line-following' if task_kind == 'line' else 'navigation'} policies; {what} is a {task_name!r} task")
+            p.error(f"{flag} is for {'line-following' if task_kind == 'line' else 'navigation'} policies; {what}")
     if a.laps is not None and a.laps < 1:
         p.error("--laps must be >= 1")
     trained = {} if sp is None else sp.task_config  # the task the checkpoint was trained on, or the defaults
