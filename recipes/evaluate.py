@@ -1,11 +1,17 @@
 """Evaluate a saved policy on any map: success, collision and timeout rates, steps to goal and
 path-length ratio, with 95% confidence intervals. Line-following policies are evaluated
-on lap completion from random starts (``--track``, ``--laps``).
+on lap completion from random starts (``--track``, ``--laps``); multi-robot policies (``multi_nav``,
+recipes/mappo_nav.py) on team success, robots at their goal and collisions, with any robot count
+(``--set robots.n=8``). ``--controller`` evaluates a classical controller instead (docs/controllers.md;
+``orca`` for several robots), on a checkpoint's task and episodes when one is given.
 
     python recipes/evaluate.py                                  # the shipped checkpoint on arena
     python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
     python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to an MCAP file (--record-path)
     python recipes/evaluate.py CKPT --episodes-file my_episodes.yaml   # given starts and goals (a map)
+    python recipes/evaluate.py runs/mappo_nav_.../actor.pt --set robots.n=8      # a multi-robot policy with 8 robots
+    python recipes/evaluate.py --controller orca --set robots.n=4 robots.scenario=circle_swap
+    python recipes/evaluate.py runs/mappo_nav_.../actor.pt --controller orca    # ORCA on that policy's episodes
 
 Accepts the ``actor.pt`` any recipe writes (format ``torchnav-actor-v2``, or ``-v3`` for a recurrent policy; see
 ``torchnav/policy.py``) and the recipes' training checkpoints (``checkpoint.pt``).
@@ -20,15 +26,15 @@ import json
 import sys
 from pathlib import Path
 
-import yaml
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import builders as B  # noqa: E402
 
-from torchnav.config import merge  # noqa: E402
+from torchnav.config import merge, to_dict  # noqa: E402
+from torchnav.controllers import CONTROLLERS, MULTI_CONTROLLERS, make_controller  # noqa: E402
 from torchnav.evaluation import FINAL_EVAL_SEED, load_episodes  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
 from torchnav.protocol import PROTOCOLS  # noqa: E402
+from torchnav.train_config import parse_override  # noqa: E402
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "td3_arena_actor.pt"
 
@@ -41,6 +47,22 @@ def load_actor(path: Path):
     return sp.policy, sp.config()
 
 
+def parse_sets(p: argparse.ArgumentParser, flag: str, items: list[str]) -> dict:
+    """``["a.b=1", "c=x"]`` -> ``{"a": {"b": 1}, "c": "x"}``, values read as the recipes' command lines read
+    them (``parse_override``: ``off`` stays a string); a bad item is a usage error."""
+    over: dict = {}
+    for kv in items:
+        if "=" not in kv:
+            p.error(f"{flag} expects KEY=VALUE, got {kv!r}")
+        k, v = parse_override(kv)
+        node = over
+        parts = k.split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = v
+    return over
+
+
 def default_record_path(ckpt: Path, where: str) -> Path:
     """``eval_episodes.mcap`` beside a run's checkpoint (a directory with ``config.yaml``); for any
     other checkpoint (the shipped ones in ``checkpoints/``) under ``runs/eval/``, never in a tracked folder."""
@@ -51,7 +73,12 @@ def default_record_path(ckpt: Path, where: str) -> Path:
 
 def main(argv: list[str]) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("checkpoint", nargs="?", default=str(DEFAULT_CHECKPOINT), help="actor.pt or checkpoint.pt (default: the shipped arena policy)")
+    p.add_argument("checkpoint", nargs="?", default=None,
+                   help="actor.pt or checkpoint.pt (default: the shipped arena policy; with --controller: none, the task's defaults)")
+    p.add_argument("--controller", default=None, metavar="NAME",
+                   help=f"evaluate this classical controller instead ({', '.join(CONTROLLERS)}: navigation; {', '.join(MULTI_CONTROLLERS)}: "
+                        "several robots), on the checkpoint's task and episodes if one is given")
+    p.add_argument("--gains", nargs="*", default=[], metavar="KEY=VALUE", help="--controller's gains, e.g. time_horizon=3 (docs/controllers.md)")
     p.add_argument("--map", "--track", dest="map", default=None, help="map (navigation) or track (line following) name or YAML path (default: where it was trained: its map, or its procedural worlds at their top difficulty)")
     p.add_argument("--laps", type=int, default=None, help="line following: laps an episode must complete to succeed (default 1)")
     p.add_argument("--episodes", type=int, default=None, help="number of episodes (default 1000)")
@@ -70,8 +97,16 @@ def main(argv: list[str]) -> dict:
                         "(Foxglove: Open connection -> Foxglove WebSocket -> ws://localhost:PORT)")
     p.add_argument("--live-episodes", type=int, default=4, help="episodes streamed with --live (default 4, side by side)")
     p.add_argument("--realtime", type=float, default=1.0, help="--live pace: simulated seconds per wall-clock second (default 1)")
-    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="task overrides, e.g. max_steps=300 reward.preset=shaped")
+    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="task overrides, e.g. max_steps=300 reward.preset=shaped robots.n=8")
     a = p.parse_args(argv)
+    if a.gains and a.controller is None:
+        p.error("--gains are a controller's: give --controller")
+    kind = None
+    if a.controller is not None:
+        kinds = {**{n: "nav" for n in CONTROLLERS}, **{n: "multi_nav" for n in MULTI_CONTROLLERS}}
+        if a.controller not in kinds:
+            p.error(f"--controller {a.controller!r}: unknown; available: {', '.join(kinds)}")
+        kind = kinds[a.controller]
     given = None
     if a.episodes_file:
         for flag, used in (("--episodes", a.episodes is not None), ("--curriculum", a.curriculum)):
@@ -95,47 +130,50 @@ def main(argv: list[str]) -> dict:
     if a.live is not None and not (0 <= a.live <= 65535 and a.live_episodes >= 1 and a.realtime > 0):
         p.error("--live needs a port in [0, 65535], --live-episodes >= 1 and --realtime > 0")
     B.ThreadGovernor(a.threads)
-    ckpt = Path(a.checkpoint)
-    sp = load_policy(ckpt)
-    actor = sp.policy.to(a.device)
-    over = {}
-    for kv in a.set:
-        if "=" not in kv:
-            p.error(f"--set expects KEY=VALUE, got {kv!r}")
-        k, v = kv.split("=", 1)
-        node = over
-        parts = k.split(".")
-        for part in parts[:-1]:
-            node = node.setdefault(part, {})
-        node[parts[-1]] = yaml.safe_load(v)
-    P = PROTOCOLS[sp.task]
+    ckpt = Path(a.checkpoint) if a.checkpoint is not None else (None if kind else DEFAULT_CHECKPOINT)
+    sp = None if ckpt is None else load_policy(ckpt)
+    task_name = kind or sp.task
+    if sp is not None and kind is not None and sp.task != kind:
+        p.error(f"--controller {a.controller} drives the {kind!r} task; {ckpt} is a {sp.task!r} policy")
+    over = parse_sets(p, "--set", a.set)
+    P = PROTOCOLS[task_name]
+    what = f"{ckpt} is a {task_name!r} policy" if a.controller is None else f"--controller {a.controller} drives the {task_name!r} task"
     for flag, used, task_kind in (("--laps", a.laps is not None, "line"), ("--curriculum", a.curriculum, "nav"), ("--episodes-file", given is not None, "nav")):
-        if used and sp.task != task_kind:
-            p.error(f"{flag} is for {'line-following' if task_kind == 'line' else 'navigation'} policies; {ckpt} is a {sp.task!r} policy")
+        if used and task_name != task_kind:
+            p.error(f"{flag} is for {'line-following' if task_kind == 'line' else 'navigation'} policies; {what}")
     if a.laps is not None and a.laps < 1:
         p.error("--laps must be >= 1")
-    if sp.task == "nav":  # the protocol moves it to the map (eval_config: procedural worlds off)
-        config = P.config_class.from_dict(merge(sp.task_config, over), where="--set")
+    trained = {} if sp is None else sp.task_config  # the task the checkpoint was trained on, or the defaults
+    if task_name == "nav":  # the protocol moves it to the map (eval_config: procedural worlds off)
+        config = P.config_class.from_dict(merge(trained, over), where="--set")
         task = P(config, anywhere=not a.curriculum, map=a.map)
     else:
-        config = P.config_class.from_dict(merge(sp.task_config, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
-        task = P(config, laps=a.laps or 1)
+        config = P.config_class.from_dict(merge(trained, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
+        task = P(config, laps=a.laps or 1) if task_name == "line" else P(config)
+    if a.controller is not None:
+        actor = make_controller(a.controller, nav=config, **parse_sets(p, "--gains", a.gains)).to(a.device)
+        name = a.controller + ("" if sp is None else f" on the task of {ckpt.name}")
+    else:
+        actor, name = sp.policy.to(a.device), ckpt.name
     where = task.where()  # what is evaluated: a map, a track, or procedural worlds at a difficulty
-    generated = sp.task == "nav" and bool(task.eval_config.worlds.families)
+    generated = task_name == "nav" and bool(task.eval_config.worlds.families)
     if given is not None and generated:
         p.error("--episodes-file needs a map: give --map for a policy trained on procedural worlds")
     if given is not None:
-        title = f"{ckpt.name} on {where}, the {a.episodes} episodes of {a.episodes_file}"
-    elif sp.task == "nav":
-        title = f"{ckpt.name} on {where}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
+        title = f"{name} on {where}, the {a.episodes} episodes of {a.episodes_file}"
+    elif task_name == "nav":
+        title = f"{name} on {where}, seed {a.seed}" + (" (goals anywhere)" if not a.curriculum else "")
+    elif task_name == "multi_nav":
+        title = f"{name} on {where}, {config.robots.n} robots ({config.robots.scenario}), seed {a.seed}"
     else:
-        title = f"{ckpt.name} on {where}, {a.laps or 1} lap(s) from random starts, seed {a.seed}"
+        title = f"{name} on {where}, {a.laps or 1} lap(s) from random starts, seed {a.seed}"
     res = task.evaluate(actor, a.episodes, a.seed, a.device, progress="evaluating", **({} if given is None else {"given": given}))
     print(task.format(res, title=title))
     if given is not None:
         print(f"outcomes per episode (S success, C collision, T timeout): {res['outcomes']}")
-    out = {"checkpoint": str(ckpt), "task": sp.task, "map": where, "seed": a.seed, "episodes": a.episodes,
-           **({} if given is None else {"episodes_file": a.episodes_file}), **res}
+    out = {"checkpoint": None if sp is None else str(ckpt), **({} if a.controller is None else {"controller": a.controller}),
+           "task": task_name, "map": where, "seed": a.seed, "episodes": a.episodes,
+           **({} if given is None else {"episodes_file": a.episodes_file}), **({"task_config": to_dict(config)} if task_name == "multi_nav" else {}), **res}
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
         Path(a.json).write_text(json.dumps(out, indent=2))
@@ -145,8 +183,8 @@ def main(argv: list[str]) -> dict:
         return None if given is None else (lambda env: env.reset_to(given[0][:n], given[1][:n]))
 
     if a.record:
-        path = Path(a.record_path) if a.record_path else default_record_path(ckpt, "worlds" if generated else where)
-        rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt), "map": where}, first_of(a.record))
+        path = Path(a.record_path) if a.record_path else default_record_path(ckpt or Path(a.controller), "worlds" if generated else where)
+        rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt or a.controller), "map": where}, first_of(a.record))
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
     if a.live is not None:
         from torchnav.record import LiveView

@@ -96,3 +96,17 @@ def test_torchrl_multi_agent_policy_runs_on_any_robot_count():
                 r = env.rollout(8, policy, break_when_any_done=False)
             assert r["agents", "action"].shape == (2, 8, n, 2) and r["agents", "action"].abs().max() <= 1
             assert r["next", "done"].any()  # went through an auto-reset
+
+
+def test_ranges_and_velocity_for_classical_controllers():
+    # ("agents", "ranges") is each robot's raw lidar and ("agents", "velocity") its planar velocity in the world frame
+    env = make_multi_nav_env("arena", 2, 3)
+    td = env.reset()
+    assert td["agents", "ranges"].shape == (2, 3, env.cfg.lidar.n_rays) and (td["agents", "velocity"] == 0).all()
+    td["agents", "action"] = torch.tensor([1.0, 0.5]).expand(2, 3, 2)
+    nxt = env.step(td)["next"]
+    r = env.state.sim.robots
+    assert torch.equal(nxt["agents", "ranges"], r.ranges)
+    heading = r.pose[..., 2]
+    assert torch.allclose(nxt["agents", "velocity"], r.vel[..., :1] * torch.stack((heading.cos(), heading.sin()), -1))
+    assert torch.allclose(nxt["agents", "velocity"].norm(dim=-1), torch.full((2, 3), env.cfg.robot.v_max))

@@ -16,7 +16,7 @@ from typing import Any, Callable
 from .config import to_dict
 from .envs import LineEnv, MultiNavEnv, NavEnv
 from .envs.base import BatchedEnv
-from .evaluation import (eval_config, format_lap_summary, format_summary, outcome_letters, record_to_file, record_with, run_episodes, run_line_episodes,
+from .evaluation import (bind_policy, eval_config, format_lap_summary, format_summary, outcome_letters, record_to_file, record_with, run_episodes, run_line_episodes,
                          summarize, summarize_laps)
 from .tasks import LineConfig, MultiNavConfig, NavConfig
 
@@ -187,11 +187,13 @@ class MultiNavProtocol(TaskProtocol):
 
     def run(self, policy, episodes: int, seed: int, device, progress: str | None = None) -> dict[str, Any]:
         """``policy``: a TensorDict module reading ``"observation"`` ``(..., D)`` and writing ``"action"``
-        (``torchnav.policy.to_policy``), applied to every robot's observation ``(E, N, D)``."""
+        (``torchnav.policy.to_policy``), applied to the agent group ``td["agents"]`` (batch ``(E, N)``: every
+        robot's observation, and the pose, goal, ranges, ... that a classical controller reads)."""
         import torch
-        from tensordict import TensorDict
 
         env = self.eval_env(int(episodes), device, seed)
+        act = _AgentGroupPolicy(policy)
+        bind_policy(act, env)
         td = env.reset()
         E, N = env.num_envs, env.n_robots
         finished = torch.zeros(E, dtype=torch.bool, device=env.device)
@@ -201,10 +203,7 @@ class MultiNavProtocol(TaskProtocol):
         present = td["agents", "mask"].reshape(E, N).clone()
         with torch.no_grad():
             for _ in range(int(self.config.max_steps) + 1):
-                obs = td["agents", "observation"]
-                act = policy(TensorDict({"observation": obs}, batch_size=obs.shape[:-1]))["action"]
-                td["agents", "action"] = act
-                nxt = env.step(td)["next"]
+                nxt = env.step(act(td))["next"]
                 live = ~finished
                 a = nxt["agents"]
                 at_goal |= a["success"].reshape(E, N) & live[:, None]
@@ -236,25 +235,12 @@ class MultiNavProtocol(TaskProtocol):
                reset: Callable[[Any], Any] | None = None) -> Any:
         """As :meth:`TaskProtocol.record`, every robot of each env in the file (docs/foxglove.md, "Several
         robots"); ``policy`` as for :meth:`run`."""
-        return super().record(self._per_robot(policy), path, episodes, seed, device, metadata, reset)
+        return super().record(_AgentGroupPolicy(policy), path, episodes, seed, device, metadata, reset)
 
     def record_with(self, policy, episodes: int, seed: int, device, make_recorder: Callable[[Any], Any],
                     reset: Callable[[Any], Any] | None = None) -> Any:
         """As :meth:`TaskProtocol.record_with` (an MCAP file or a ``LiveView``); ``policy`` as for :meth:`run`."""
-        return super().record_with(self._per_robot(policy), episodes, seed, device, make_recorder, reset)
-
-    @staticmethod
-    def _per_robot(policy) -> Callable[[Any], Any]:
-        """``policy`` (``"observation"`` -> ``"action"``) as a policy of the env's agent group: every robot's
-        ``("agents", "observation")`` ``(E, N, D)`` -> ``("agents", "action")``, as :meth:`run` applies it."""
-        from tensordict import TensorDict
-
-        def act(td):
-            obs = td["agents", "observation"]
-            td["agents", "action"] = policy(TensorDict({"observation": obs}, batch_size=obs.shape[:-1]))["action"]
-            return td
-
-        return act
+        return super().record_with(_AgentGroupPolicy(policy), episodes, seed, device, make_recorder, reset)
 
     def where(self) -> str:
         return NavProtocol.where(self) if self.config.worlds.families else super().where()
@@ -268,6 +254,22 @@ class MultiNavProtocol(TaskProtocol):
         if self.config.worlds.families:
             return NavProtocol.scalars(self, env)
         return {"curriculum/radius": env.curriculum.radius.item()} if self.config.robots.scenario == "random" else {}
+
+
+class _AgentGroupPolicy:
+    """``policy`` (``"observation"`` -> ``"action"``, or a multi-robot controller) as a policy of the env's
+    agent group: ``td["agents"]`` (batch ``(E, N)``: every robot's observation, pose, goal, ranges, ...)
+    in, ``("agents", "action")`` out; ``bind(env)`` binds a controller to the env."""
+
+    def __init__(self, policy) -> None:
+        self.policy = policy
+
+    def bind(self, env) -> None:
+        bind_policy(self.policy, env)
+
+    def __call__(self, td):
+        td["agents", "action"] = self.policy(td["agents"].exclude("action"))["action"]
+        return td
 
 
 PROTOCOLS: dict[str, type[TaskProtocol]] = {p.name: p for p in (NavProtocol, LineProtocol, MultiNavProtocol)}

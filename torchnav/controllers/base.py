@@ -29,10 +29,12 @@ def parse_gains(cls: type, gains: Any, where: str):
     raise ConfigError(f"{where}: expected a {cls.__name__} or a mapping of gains, got {type(gains).__name__}")
 
 
-def check_positive(where: str, **values: float) -> None:
+def check_positive(**values: float) -> None:
+    """Refuse a gain that is not > 0; the message names the key within its gains class (``parse_gains``
+    puts the controller's name in front)."""
     for k, v in values.items():
         if not v > 0:
-            raise ConfigError(f"{where}.{k} must be > 0, got {v!r}")
+            raise ConfigError(f"{k} must be > 0, got {v!r}")
 
 
 class Controller(TensorDictModuleBase):

@@ -26,7 +26,7 @@ class GoToGoalGains:
     turn_in_place: float = 0.8  # rad: above this bearing error the robot turns on the spot (v = 0)
 
     def __post_init__(self) -> None:
-        check_positive("go_to_goal", k_v=self.k_v, k_omega=self.k_omega, turn_in_place=self.turn_in_place)
+        check_positive(k_v=self.k_v, k_omega=self.k_omega, turn_in_place=self.turn_in_place)
 
 
 class GoToGoal(Controller):
@@ -54,10 +54,10 @@ class ReactiveGains:
     stop_distance: float = 0.05  # m: ... down to zero at this gap (robot edge to return)
 
     def __post_init__(self) -> None:
-        check_positive("reactive", k_v=self.k_v, k_omega=self.k_omega, turn_in_place=self.turn_in_place,
+        check_positive(k_v=self.k_v, k_omega=self.k_omega, turn_in_place=self.turn_in_place,
                        lookahead=self.lookahead, slow_distance=self.slow_distance)
         if not 0 <= self.stop_distance < self.slow_distance or self.margin < 0:
-            raise ConfigError("reactive: need margin >= 0 and 0 <= stop_distance < slow_distance")
+            raise ConfigError("margin, stop_distance: need margin >= 0 and 0 <= stop_distance < slow_distance")
 
 
 class Reactive(Controller):
@@ -79,10 +79,11 @@ class Reactive(Controller):
         hit = (along > 0) & (along < reach[..., None]) & (across < self.radius + self.gains.margin)
         return ~hit.any(-1)
 
-    def twist(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
+    def steer(self, ranges: Tensor, dist: Tensor, bearing: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The heading ``(B,)`` rad (robot frame) to steer at, given the scan ``ranges`` ``(B, R)`` m and the
+        goal's distance and bearing ``(B,)``: the goal's if open, else the open ray nearest to it (the
+        goal's where nothing is open); whether any heading is open ``(B,)``; the returns ``(B, R, 2)``."""
         g = self.gains
-        pose, ranges = td.get("pose"), td.get("ranges")
-        dist, bearing = NavTask.goal_vector(pose, td.get("goal"))
         pts = self.hit_points(ranges)
         rays = self.ray_angles(ranges).expand(ranges.shape[0], -1)  # (B, R)
         cand = torch.cat((bearing[:, None], rays), dim=1)  # (B, 1 + R)
@@ -96,7 +97,13 @@ class Reactive(Controller):
         cost = torch.where(is_open, cost, torch.full_like(cost, math.inf))
         best = cost.argmin(-1)
         any_open = is_open.any(-1)
-        target = torch.where(any_open, cand.gather(1, best[:, None])[:, 0], bearing)
+        return torch.where(any_open, cand.gather(1, best[:, None])[:, 0], bearing), any_open, pts
+
+    def twist(self, td: TensorDictBase) -> tuple[Tensor, Tensor]:
+        g = self.gains
+        pose = td.get("pose")
+        dist, bearing = NavTask.goal_vector(pose, td.get("goal"))
+        target, any_open, pts = self.steer(td.get("ranges"), dist, bearing)
         v, omega = self.heading_speed(dist, target, g.k_v, g.k_omega, g.turn_in_place)
         # Blocked all round: spin towards the goal side (a disc robot can always turn safely).
         spin = torch.where(bearing >= 0, torch.ones_like(v), -torch.ones_like(v)) * self.omega_max
@@ -118,10 +125,10 @@ class PotentialFieldGains:
     turn_in_place: float = 1.2  # rad: turn on the spot above this heading error
 
     def __post_init__(self) -> None:
-        check_positive("potential_field", k_att=self.k_att, att_distance=self.att_distance, influence=self.influence,
+        check_positive(k_att=self.k_att, att_distance=self.att_distance, influence=self.influence,
                        min_gap=self.min_gap, k_v=self.k_v, k_omega=self.k_omega, turn_in_place=self.turn_in_place)
         if self.k_rep < 0:
-            raise ConfigError(f"potential_field.k_rep must be >= 0, got {self.k_rep!r}")
+            raise ConfigError(f"k_rep must be >= 0, got {self.k_rep!r}")
 
 
 class PotentialField(Controller):

@@ -40,10 +40,10 @@ class TrackerGains:
     accept_radius: float = 0.1  # m: a waypoint counts as reached this close (the last one never does)
 
     def __post_init__(self) -> None:
-        check_positive("tracker", kp=self.kp, lookahead=self.lookahead, k_v=self.k_v, corner_speed=self.corner_speed, corner_angle=self.corner_angle,
+        check_positive(kp=self.kp, lookahead=self.lookahead, k_v=self.k_v, corner_speed=self.corner_speed, corner_angle=self.corner_angle,
                        turn_in_place=self.turn_in_place, accept_radius=self.accept_radius)
         if self.ki < 0 or self.kd < 0 or self.integral_limit < 0:
-            raise ConfigError("tracker: ki, kd and integral_limit must be >= 0")
+            raise ConfigError("ki, kd and integral_limit must be >= 0")
 
 
 class WaypointTracker:
@@ -153,12 +153,12 @@ class PlannerGains:
 
     def __post_init__(self) -> None:
         if self.planner not in PLANNERS:
-            raise ConfigError(f"planner.planner must be one of {PLANNERS}, got {self.planner!r}")
+            raise ConfigError(f"planner must be one of {PLANNERS}, got {self.planner!r}")
         if self.no_path not in NO_PATH:
-            raise ConfigError(f"planner.no_path must be one of {NO_PATH}, got {self.no_path!r}")
+            raise ConfigError(f"no_path must be one of {NO_PATH}, got {self.no_path!r}")
         if not self.margins or min(self.margins) < 0:
-            raise ConfigError(f"planner.margins must be a non-empty list of values >= 0 m, got {self.margins!r}")
-        check_positive("planner", resolution=self.resolution, rrt_step=self.rrt_step, rrt_check_step=self.rrt_check_step, rrt_max_iters=self.rrt_max_iters)
+            raise ConfigError(f"margins must be a non-empty list of values >= 0 m, got {self.margins!r}")
+        check_positive(resolution=self.resolution, rrt_step=self.rrt_step, rrt_check_step=self.rrt_check_step, rrt_max_iters=self.rrt_max_iters)
 
 
 class PlannerController(Controller):

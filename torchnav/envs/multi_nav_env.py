@@ -3,7 +3,9 @@
 form one agent group of batch ``(num_envs, n_robots)``, laid out as TorchRL's multi-agent envs (VMAS)
 lay theirs out: ``("agents", "observation")``, ``("agents", "action")``, ``("agents", "reward")``,
 per-robot ``("agents", "done" / "terminated" / "truncated")`` beside the env's own ``done`` flags, and
-``("agents", "mask")``, which robots exist in each env.
+``("agents", "mask")``, which robots exist in each env. ``("agents", "ranges")`` (each robot's raw
+lidar, m) and ``("agents", "velocity")`` (its planar velocity in the world frame, m/s) are there for
+classical controllers (``torchnav.controllers.ORCA``), which read the raw scan and the others' motion.
 
 A robot that parks (goal reached or collided) reads ``("agents", "terminated")`` True until its env
 resets; the env resets only when its own ``done`` is set (``"_reset"`` ``(B, 1)``), so TorchRL's
@@ -52,6 +54,7 @@ class MultiNavEnv(BatchedEnv):
         agents = Composite(
             observation=Unbounded(shape=(*ab, self.task.obs_size), device=dev), mask=flag(ab),
             pose=Unbounded(shape=(*ab, 3), device=dev), goal=Unbounded(shape=(*ab, 2), device=dev),
+            ranges=Unbounded(shape=(*ab, self.cfg.lidar.n_rays), device=dev), velocity=Unbounded(shape=(*ab, 2), device=dev),
             **{f: flag(ab) for f in AGENT_FLAGS},
             reward_terms=Composite({k: col() for k in self.task.term_names}, shape=ab, device=dev),
             episode_return=col(), shape=ab, device=dev,
@@ -130,8 +133,12 @@ class MultiNavEnv(BatchedEnv):
 
     def _agent_outputs(self, s: MultiNavState, terms: dict[str, torch.Tensor], flags: dict[str, torch.Tensor]) -> TensorDict:
         b, ab = self.batch_size, (*self.batch_size, self.task.n)
+        r = s.sim.robots
+        heading = r.pose[..., 2]
+        velocity = r.vel[..., :1] * torch.stack((torch.cos(heading), torch.sin(heading)), -1)  # forward speed along the heading
         agents = TensorDict({
-            "observation": s.observation, "mask": s.present[..., None].clone(), "pose": s.sim.robots.pose, "goal": s.goal, **flags,
+            "observation": s.observation, "mask": s.present[..., None].clone(), "pose": r.pose, "goal": s.goal,
+            "ranges": r.ranges, "velocity": velocity, **flags,
             "reward_terms": {k: v[..., None] for k, v in terms.items()}, "episode_return": s.ep_return[..., None],
         }, batch_size=ab, device=self.device)
         return TensorDict({"agents": agents, "episode_length": s.steps.to(s.ep_return.dtype)[:, None]}, batch_size=b, device=self.device)
