@@ -20,6 +20,7 @@ from torchnav.envs import make_multi_nav_env
 from torchnav.evaluation import FINAL_EVAL_SEED
 from torchnav.protocol import MultiNavProtocol, task_protocol
 from torchnav.tasks import MultiNavConfig
+from torchnav.record.reader import read_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "recipes"))
@@ -129,8 +130,11 @@ def test_evaluate_multi_nav_checkpoint_on_other_robot_counts(mappo_actor, tmp_pa
         _evaluate([str(mappo_actor), "--episodes", "2", "--curriculum"])
     with pytest.raises(ConfigError, match="robots.n"):
         _evaluate([str(mappo_actor), "--episodes", "2", "--set", "robots.n=40"])
-    with pytest.raises(NotImplementedError):  # MultiNavProtocol.record: recording several robots comes later
-        _evaluate([str(mappo_actor), "--episodes", "2", "--record", "1", "--record-path", str(tmp_path / "r.mcap")])
+    for who in ([str(mappo_actor)], ["--controller", "orca", "--set", "robots.n=3"]):  # --record writes every robot
+        path = tmp_path / f"{len(who)}.mcap"
+        _evaluate([*who, "--episodes", "2", "--record", "1", "--record-path", str(path)])
+        (episode,) = read_recording(path).episodes()
+        assert len(episode.robots) == (4 if len(who) == 1 else 3)
 
 
 def test_controller_and_checkpoint_play_the_same_episodes(mappo_actor, monkeypatch):
