@@ -32,6 +32,7 @@ def _positive(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x) and x > 0
 
 
+@pytest.mark.slow  # about 15-25 s: tools' end-to-end runs, outside the default suite's budget
 def test_bench_scripts_quick_json():
     cmds = {
         "sim": [sys.executable, str(ROOT / "bench" / "sim_throughput.py"), "--quick", "--json", "--device", "cpu", "--threads", "1", "--sizes", "1,64",
@@ -70,6 +71,7 @@ def test_bench_scripts_quick_json():
     assert "collector / raw-sim" in env_log
 
 
+@pytest.mark.slow  # about 15-25 s: tools' end-to-end runs, outside the default suite's budget
 def test_sim_ab_compares_two_trees_in_one_process(tmp_path):
     """bench/sim_ab.py imports a second tree's simulator under another name and times both trees'
     plain and option steps in turns (eager here, a smoke test); a path without torchnav/sim is refused."""
@@ -126,6 +128,7 @@ def test_compiled_options_compile_once_each():
     assert counters["frames"]["ok"] == 3, dict(counters["frames"])
 
 
+@pytest.mark.slow  # about 15-25 s: tools' end-to-end runs, outside the default suite's budget
 def test_worlds_bench_json_and_bad_difficulty():
     cmd = [sys.executable, str(ROOT / "bench" / "worlds.py"), "--num-envs", "8", "--families", "forest,open", "--difficulties", "0.5,mixed",
            "--guide-cells", "16", "--cpu-time", "--repeats", "1", "--json"]

@@ -198,6 +198,7 @@ def test_failure_paths_plays_the_benchmark_cells_episodes():
             assert float(path[i, int(steps[i])]) < 0.3 + 0.25
 
 
+@pytest.mark.slow  # about 15-25 s: tools' end-to-end runs, outside the default suite's budget
 def test_failure_paths_on_a_map_cell_and_its_picture(tmp_path):
     """On a shipped map (no goal grid) failure_paths measures straight-line distances, plays the
     benchmark's episodes of that map, and --picture draws the failures it names."""

@@ -16,6 +16,7 @@ TINY = ["threads=1", "env.num_envs=16", "task.max_steps=60", "eval.interval_fram
         "train.batch_size=32", "train.hidden=[16,16]", "train.buffer_size=1000", "train.total_frames=256"]
 
 
+@pytest.mark.slow  # about 15-25 s: tools' end-to-end runs, outside the default suite's budget
 def test_sweep_runs_a_grid_in_parallel_and_aggregates(tmp_path, capsys):
     import sweep
 
