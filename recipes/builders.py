@@ -42,7 +42,7 @@ from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from tqdm import tqdm
 
-from torchnav.checkpoint import load_checked, save_checked
+from torchnav.checkpoint import load_checked, save_checked, write_atomic
 from torchnav.config import ConfigError, to_dict
 from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED
 from torchnav.policy import STATE_KEY, Actor, RecurrentActor, save_policy, policy_payload, to_policy
@@ -543,7 +543,7 @@ def finish(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any]:
 
 
 def write_json(path: Path, obj: Any) -> None:
-    path.write_text(json.dumps(obj, indent=2))
+    write_atomic(path, json.dumps(obj, indent=2))
 
 
 # --------------------------------------------------------------------------- the machine and the command line

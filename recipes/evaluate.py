@@ -29,6 +29,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import builders as B  # noqa: E402
 
+from torchnav.checkpoint import write_atomic  # noqa: E402
 from torchnav.config import merge, to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, MULTI_CONTROLLERS, make_controller  # noqa: E402
 from torchnav.evaluation import FINAL_EVAL_SEED, load_episodes  # noqa: E402
@@ -176,7 +177,7 @@ def main(argv: list[str]) -> dict:
            **({} if given is None else {"episodes_file": a.episodes_file}), **({"task_config": to_dict(config)} if task_name == "multi_nav" else {}), **res}
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(json.dumps(out, indent=2))
+        write_atomic(Path(a.json), json.dumps(out, indent=2))
         print(f"wrote {a.json}")
 
     def first_of(n: int):  # with --episodes-file: recorded episodes are the file's first n

@@ -468,3 +468,27 @@ def test_map_distance_field_is_chunked_over_many_obstacles():
     got = obstacle_distance_arrays(xy.numpy(), circles=circles.numpy())
     want = points_clearance(xy[None], make_world(1, circles=circles.numpy(), dtype=torch.float64))[0].numpy()
     assert np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("fault", ["disk full", "killed during the rename"])
+def test_a_write_that_fails_half_way_leaves_the_previous_file_loadable(tmp_path, monkeypatch, fault):
+    import os
+
+    from torchnav import checkpoint
+    from torchnav.checkpoint import load_checked, save_checked, write_atomic
+
+    ckpt, summary = tmp_path / "checkpoint.pt", tmp_path / "summary.json"
+    save_checked(ckpt, {"format": "test", "step": torch.tensor(1)})
+    write_atomic(summary, '{"frames": 1}')
+
+    def fail(*args, **kwargs):
+        raise OSError(28 if fault == "disk full" else 4, fault)
+
+    monkeypatch.setattr(checkpoint.os, "fsync" if fault == "disk full" else "replace", fail)
+    with pytest.raises(OSError, match=fault):
+        save_checked(ckpt, {"format": "test", "step": torch.tensor(2)})
+    with pytest.raises(OSError, match=fault):
+        write_atomic(summary, '{"frames": 2}')
+    monkeypatch.undo()
+    assert int(load_checked(ckpt)["step"]) == 1 and summary.read_text() == '{"frames": 1}'
+    assert sorted(os.listdir(tmp_path)) == ["checkpoint.pt", "summary.json"]  # no half-written temporary file is left

@@ -66,16 +66,27 @@ def _non_finite(obj: Any, path: str = "", allow_inf: bool = False) -> str | None
 
 
 def save_checked(path: str | Path, payload: dict[str, Any]) -> None:
-    """Write ``payload`` with its content hash to ``path``: temporary file, fsync, rename."""
-    path = Path(path)
+    """Write ``payload`` with its content hash to ``path`` (:func:`write_atomic`)."""
     buf = io.BytesIO()
     torch.save({**payload, HASH_KEY: content_hash(payload)}, buf)
+    write_atomic(path, buf.getbuffer())
+
+
+def write_atomic(path: str | Path, data: bytes | memoryview | str) -> None:
+    """Write ``data`` to ``path`` through a temporary file beside it, fsync and rename: a write
+    that fails half way (disk full, the process killed) leaves the previous ``path`` whole, and the
+    error (``OSError``) reaches the caller; the half-written temporary file is removed."""
+    path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(buf.getbuffer())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     try:  # make the rename itself durable
         fd = os.open(path.parent, os.O_RDONLY)
     except OSError:  # directories cannot be opened on some systems

@@ -36,6 +36,7 @@ from typing import Any, Iterable
 import torch
 import yaml
 
+from .checkpoint import write_atomic
 from .config import (Config, ConfigError, checked, count, discount, flag, from_dict, is_int, non_negative, one_of, positive,
                      probability, real, sizes, to_dict)
 from .policy import RECURRENT
@@ -515,4 +516,4 @@ def resumed_config(saved: dict[str, Any], argv: list[str], name: str, run: Path 
 
 def save_config(cfg: Recipe, run: Path) -> None:
     """``<run>/config.yaml``: every key, the defaults included; ``--config`` reads it back to the same config."""
-    (run / "config.yaml").write_text(yaml.safe_dump(to_dict(cfg), sort_keys=False))
+    write_atomic(run / "config.yaml", yaml.safe_dump(to_dict(cfg), sort_keys=False))
