@@ -319,15 +319,19 @@ BAD_MAPS = [
 
 @pytest.mark.parametrize("text,message", BAD_MAPS, ids=[m for _, m in BAD_MAPS])
 def test_bad_map_file_is_named_quickly(tmp_path, text, message):
-    import time
-
     from torchnav.maps import load_map
 
-    path = tmp_path / "bad.yaml"
+    _refused_quickly(load_map, MapError, tmp_path / "bad.yaml", text, message)
+
+
+def _refused_quickly(load, error: type, path: Path, text: str, message: str) -> None:
+    """``load(path)`` of a file holding ``text`` raises ``error`` naming ``message`` and the file, within 5 s."""
+    import time
+
     path.write_text(text)
     t0 = time.perf_counter()
-    with pytest.raises(MapError) as e:
-        load_map(path)
+    with pytest.raises(error) as e:
+        load(path)
     assert message in str(e.value) and str(path) in str(e.value)
     assert time.perf_counter() - t0 < 5, "the loader must not hang"
 
@@ -377,17 +381,9 @@ BAD_TRACKS = [  # (track file, what the message must contain): each refused befo
 
 @pytest.mark.parametrize("text,message", BAD_TRACKS, ids=[str(i) for i in range(len(BAD_TRACKS))])
 def test_track_resampling_is_bounded_up_front(tmp_path, text, message):
-    import time
-
     from torchnav.tracks import load_track
 
-    path = tmp_path / "t.yaml"
-    path.write_text(text)
-    t0 = time.perf_counter()
-    with pytest.raises(TrackError) as e:
-        load_track(path)
-    assert message in str(e.value) and str(path) in str(e.value)
-    assert time.perf_counter() - t0 < 5
+    _refused_quickly(load_track, TrackError, tmp_path / "t.yaml", text, message)
 
 
 def test_track_at_the_point_limit_builds(tmp_path):

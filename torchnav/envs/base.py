@@ -224,7 +224,7 @@ class BatchedEnv(EnvBase):
     extra_state_keys: tuple[str, ...] = ("generator",)  # what every saved env state holds ("episodes" once reset)
 
     def get_extra_state(self) -> dict[str, Any]:
-        """The generator's state and the episodes in flight (NavEnv adds the curriculum and its episode pool)."""
+        """The generator's state and the episodes in flight (:class:`CurriculumPoolState` adds the curriculum and the episode pool)."""
         out: dict[str, Any] = {"generator": self._generator.get_state()}
         if self._state is not None:
             out["episodes"] = self._state.clone().to_dict()  # copies: a view would save its whole storage
@@ -252,3 +252,20 @@ class BatchedEnv(EnvBase):
                               TensorDict.from_dict(d, batch_size=[n]))
         except (RuntimeError, KeyError) as e:
             raise ValueError(f"{type(self).__name__}: saved episodes do not fit this env's task config ({e})") from None
+
+
+class CurriculumPoolState:
+    """The saved state of an env with a goal curriculum (``self.curriculum``) and a pool of
+    pre-sampled episodes (``self.pool``): NavEnv and MultiNavEnv. Put before ``BatchedEnv`` in the
+    bases, so that ``super()`` reaches its generator and episodes."""
+
+    extra_state_keys = ("curriculum", "generator", "pool")
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""
+        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": self.pool.state_dict()}
+
+    def set_extra_state(self, state: dict[str, Any]) -> None:
+        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum and the pool
+        self.curriculum.load_state_dict(state["curriculum"])
+        self.pool.load_state_dict(state["pool"], self.state_from_dict)

@@ -21,12 +21,12 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 
 from ..tasks import CurriculumState, EpisodePool, MultiNavConfig, MultiNavState, MultiNavTask
-from .base import BatchedEnv
+from .base import BatchedEnv, CurriculumPoolState
 
 AGENT_FLAGS = ("success", "collision", "robot_collision")
 
 
-class MultiNavEnv(BatchedEnv):
+class MultiNavEnv(CurriculumPoolState, BatchedEnv):
     """``num_envs`` envs of ``cfg.robots.n`` robot slots each (see the module docstring for the keys)."""
 
     config_class, task_class = MultiNavConfig, MultiNavTask
@@ -142,17 +142,6 @@ class MultiNavEnv(BatchedEnv):
             "reward_terms": {k: v[..., None] for k, v in terms.items()}, "episode_return": s.ep_return[..., None],
         }, batch_size=ab, device=self.device)
         return TensorDict({"agents": agents, "episode_length": s.steps.to(s.ep_return.dtype)[:, None]}, batch_size=b, device=self.device)
-
-    extra_state_keys = ("curriculum", "generator", "pool")
-
-    def get_extra_state(self) -> dict[str, Any]:
-        """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""
-        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": self.pool.state_dict()}
-
-    def set_extra_state(self, state: dict[str, Any]) -> None:
-        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum and the pool
-        self.curriculum.load_state_dict(state["curriculum"])
-        self.pool.load_state_dict(state["pool"], self.state_from_dict)
 
     def advance(self, action: torch.Tensor):
         raise NotImplementedError("MultiNavEnv has no differentiable rollout yet: step it through TorchRL's step")

@@ -12,10 +12,10 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Unbounded
 
 from ..tasks import CurriculumState, EpisodePool, NavConfig, NavState, NavTask, after_episodes, after_family_episodes
-from .base import BatchedEnv
+from .base import BatchedEnv, CurriculumPoolState
 
 
-class NavEnv(BatchedEnv):
+class NavEnv(CurriculumPoolState, BatchedEnv):
     """Batched lidar navigation (see docs/tasks.md for observation, action and reward)."""
 
     config_class, task_class = NavConfig, NavTask
@@ -94,19 +94,6 @@ class NavEnv(BatchedEnv):
 
     def _episode_stats(self, s: NavState) -> dict[str, torch.Tensor]:
         return {"path_length": s.ep_path, "straight_line": s.straight}
-
-    # -- state for checkpoints and recording ------------------------------------------------
-
-    extra_state_keys = ("curriculum", "generator", "pool")
-
-    def get_extra_state(self) -> dict[str, Any]:
-        """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""
-        return {"curriculum": self.curriculum.state_dict(), **super().get_extra_state(), "pool": self.pool.state_dict()}
-
-    def set_extra_state(self, state: dict[str, Any]) -> None:
-        super().set_extra_state(state)  # first: rebuilding the episodes may place new ones, which moves the curriculum and the pool
-        self.curriculum.load_state_dict(state["curriculum"])
-        self.pool.load_state_dict(state["pool"], self.state_from_dict)
 
 
 def make_nav_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:
