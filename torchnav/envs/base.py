@@ -13,6 +13,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 from torchrl.envs import EnvBase
 
+from ..tasks import EpisodePool
+
 
 def _leaves(d: dict[str, Any]):
     for v in d.values():
@@ -260,6 +262,16 @@ class CurriculumPoolState:
     bases, so that ``super()`` reaches its generator and episodes."""
 
     extra_state_keys = ("curriculum", "generator", "pool")
+
+    def _drawn_state(self, mask: torch.Tensor | None) -> Any:
+        """New episodes in every env (``mask`` None: a fresh pool too) or where ``mask`` is True, and
+        the curriculum after their goals."""
+        if mask is None:
+            self.pool = EpisodePool()
+            state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
+        else:
+            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator, self.pool)
+        return state
 
     def get_extra_state(self) -> dict[str, Any]:
         """Curriculum, generator, episodes in flight and the pool of pre-sampled ones: ``env.state_dict()["_extra_state"]``."""

@@ -74,12 +74,7 @@ class MultiNavEnv(CurriculumPoolState, BatchedEnv):
     # -- reset and step ---------------------------------------------------------------
 
     def _new_state(self, mask: torch.Tensor | None) -> MultiNavState:
-        if mask is None:
-            self.pool = EpisodePool()
-            state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
-        else:
-            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator, self.pool)
-        return state
+        return self._drawn_state(mask)
 
     def _reset_view(self, s: MultiNavState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         return s.observation, {}

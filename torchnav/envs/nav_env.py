@@ -71,12 +71,7 @@ class NavEnv(CurriculumPoolState, BatchedEnv):
             raise ValueError("NavEnv.reset: options 'start' and 'goal' go together")
         if start is not None:
             return self.task.place_episodes(self._state, start, goal, self.curriculum, self._generator, mask)
-        if mask is None:
-            self.pool = EpisodePool()
-            state, self.curriculum = self.task.initial_state(self.curriculum, self._generator)
-        else:
-            state, self.curriculum = self.task.reset(self._state, mask, self.curriculum, self._generator, self.pool)
-        return state
+        return self._drawn_state(mask)
 
     def _reset_view(self, s: NavState) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         return s.history.reshape(self.num_envs, -1), {}
