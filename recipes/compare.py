@@ -67,7 +67,8 @@ def scenarios(cfg: NavConfig, n: int, seed: int) -> dict[str, torch.Tensor]:
     env = NavEnv(cfg, num_envs=n, seed=seed)
     env.reset()
     s = env.state
-    return {"start": s.start, "goal": s.goal, "segments": s.world.segments, "boxes": s.world.boxes, "circles": s.world.circles}
+    w = env.task.full_world(s.world)
+    return {"start": s.start, "goal": s.goal, "segments": w.segments, "boxes": w.boxes, "circles": w.circles}
 
 
 def same_scenarios(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
@@ -117,7 +118,7 @@ def trajectories(policy, cfg: NavConfig, n: int, seed: int, device: str = "cpu")
     env = NavEnv(cfg, num_envs=n, device=device, seed=seed)
     bind_policy(policy, env)
     td = env.reset()
-    world, goal = env.state.world.clone(), env.state.goal.clone()
+    world, goal = env.task.full_world(env.state.world).clone(), env.state.goal.clone()
     poses, end = [td["pose"].clone()], torch.full((n,), cfg.max_steps, dtype=torch.long)
     finished = torch.zeros(n, dtype=torch.bool, device=env.device)
     outcome = ["T"] * n

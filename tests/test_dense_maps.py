@@ -233,9 +233,9 @@ def test_chunked_clearance_equals_one_call(forest, monkeypatch):
     pts = torch.rand(4, 50, 2, generator=torch.Generator().manual_seed(0)) * 30 - 15
     whole = points_clearance(pts, world)
     monkeypatch.setattr(sampling, "_CHUNK_ELEMENTS", 4 * 404 * 7)  # 7 points per chunk, the last one short
-    assert torch.equal(sampling._clearance(pts, world), whole)
+    assert torch.equal(sampling.obstacle_clearance(pts, world), whole)
     monkeypatch.setattr(sampling, "_CHUNK_ELEMENTS", 1)  # still one point at a time
-    assert torch.equal(sampling._clearance(pts, world), whole)
+    assert torch.equal(sampling.obstacle_clearance(pts, world), whole)
     assert whole[0, 0].item() == pytest.approx(naive_point_clearance(*pts[0, 0].tolist(), world, 0), abs=1e-5)
 
 
@@ -248,11 +248,13 @@ def test_reset_on_a_dense_map_never_starts_in_collision(forest):
     state, _ = task.initial_state(CurriculumState.initial(cfg.curriculum), gen)
     need = cfg.robot.radius + cfg.reset.start_clearance
     assert (state.sim.clearance >= cfg.reset.start_clearance - 1e-5).all() and not state.sim.collided.any()
-    start_gap = points_clearance(state.start[:, None, :2], state.world)[:, 0]
+    assert task.static is not None  # 400 fixed circles: the map is held once for the batch (shared_map: auto)
+    world = task.full_world(state.world)  # each env's obstacles: the map's and the episode's random ones
+    start_gap = points_clearance(state.start[:, None, :2], world)[:, 0]
     assert (start_gap >= need - 1e-5).all()  # random objects included
-    goal_gap = points_clearance(state.goal[:, None], state.world)[:, 0]
+    goal_gap = points_clearance(state.goal[:, None], world)[:, 0]
     assert (goal_gap >= cfg.reset.goal_clearance - 1e-5).all()
-    assert state.world.circle_mask[:, 400:].float().mean() > 0.9  # random objects found room
+    assert world.circle_mask[:, 400:].float().mean() > 0.9  # random objects found room
 
 
 def test_docs_show_the_example_map_verbatim():

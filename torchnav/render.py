@@ -245,7 +245,7 @@ def plot_env(env: Any, envs: Sequence[int] | None = None, ncols: int = 4):
     s = env.state
     if s is None:
         raise ValueError("plot_env: the env has no state yet; call env.reset() first")
-    return plot_envs(s.world, s.sim.pose, s.sim.ranges, s.goal, env.task.params.lidar, env.cfg.robot.radius,
+    return plot_envs(env.task.full_world(s.world), s.sim.pose, s.sim.ranges, s.goal, env.task.params.lidar, env.cfg.robot.radius,
                      envs=envs, ncols=ncols, goal_radius=env.cfg.goal_tolerance)
 
 

@@ -39,7 +39,7 @@ def drive(controller: Any, nav: NavConfig, start: Any, goal: Any, steps: int | N
     task = NavTask(nav, n)
     state, _ = task.initial_state(CurriculumState.initial(nav.curriculum), torch.Generator().manual_seed(0))
     state.world = task.base_world
-    state.sim = init_state(start, task.base_world, task.params)
+    state.sim = init_state(start, task.base_world, task.params, static=task.static)
     state.goal = goal
     view = _TaskView(task, state)
     getattr(controller, "bind", lambda env: None)(view)

@@ -243,7 +243,7 @@ class PlannerController(Controller):
         if state is None:
             raise RuntimeError(f"{type(self).__name__}: the bound env has no state; reset it first")
         idx = torch.as_tensor(envs, device=pose.device)
-        world = state.world[idx].to("cpu")
+        world = getattr(self._env.task, "full_world", lambda w: w)(state.world[idx]).to("cpu")  # the map's shared obstacles too
         starts, goals = pose[idx, :2].double().cpu().numpy(), goal[idx].double().cpu().numpy()
         paths, ok = [], []
         for k in range(len(envs)):

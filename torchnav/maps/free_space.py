@@ -15,7 +15,11 @@ import numpy as np
 import torch
 
 from ..sim import make_world, points_clearance
+from ..sim.static_map import build_static_map, static_clearance
 from .spec import MapError, MapSpec
+
+
+INDEX_FROM = 256  # obstacles from which distances go through a grid index
 
 
 def obstacle_distance(spec: MapSpec, xy: np.ndarray) -> np.ndarray:
@@ -33,10 +37,15 @@ def obstacle_distance_arrays(xy: np.ndarray, segments=(), circles=(), boxes=()) 
 
     The simulator's own geometry (``torchnav.sim.points_clearance``) in float64, so planners,
     map checks and the simulator agree on every distance."""
-    world = make_world(1, segments=np.asarray(segments, dtype=np.float64).reshape(-1, 4),
-                       circles=np.asarray(circles, dtype=np.float64).reshape(-1, 3),
-                       boxes=np.asarray(boxes, dtype=np.float64).reshape(-1, 5), dtype=torch.float64)
+    segments, circles, boxes = (torch.as_tensor(np.asarray(a, dtype=np.float64).reshape(-1, w)) for a, w in ((segments, 4), (circles, 3), (boxes, 5)))
     pts = torch.as_tensor(np.asarray(xy, dtype=np.float64).reshape(1, -1, 2))
+    if len(segments) + len(circles) + len(boxes) > INDEX_FROM and pts.shape[1]:
+        # Many obstacles: each point is measured against its cell's candidates only (sim/static_map.py),
+        # the same distances as against every obstacle.
+        lo, hi = pts[0].amin(0) - 1.0, pts[0].amax(0) + 1.0
+        static = build_static_map((lo[0], lo[1], hi[0], hi[1]), segments, circles, boxes, reach=0.0, dtype=torch.float64)
+        return static_clearance(static, pts)[0].numpy()
+    world = make_world(1, segments=segments, circles=circles, boxes=boxes, dtype=torch.float64)
     # points_clearance holds a (points, obstacles) table per kind: chunk the points to keep it small.
     step = max(1, (1 << 22) // max(1, world.segments.shape[1], world.circles.shape[1], world.boxes.shape[1]))
     return torch.cat([points_clearance(pts[:, i:i + step], world)[0] for i in range(0, pts.shape[1], step)]).numpy()

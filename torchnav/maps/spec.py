@@ -14,6 +14,7 @@ import torch
 
 from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.state import World, make_world, pad_world
+from torchnav.sim.static_map import StaticMap, build_static_map
 
 
 class MapError(ValueError):
@@ -120,12 +121,28 @@ class MapSpec:
         batch_size: int,
         device: torch.device | str | None = None,
         dtype: torch.dtype = torch.float32,
+        fixed: bool = True,
     ) -> World:
         """The map's world for ``batch_size`` envs: the fixed obstacles in every env, then the random
         objects' slots, zeroed and masked off until the task fills them at reset (docs/maps.md,
-        "What build_world makes")."""
-        fixed = make_world(batch_size, self.segments, self.circles, self.boxes, device=device, dtype=dtype)
-        return pad_world(fixed, circles=self.n_circle_slots, boxes=self.n_box_slots)
+        "What build_world makes"). ``fixed=False``: the random slots only, for a task that holds the
+        fixed obstacles once in a :meth:`static_map`."""
+        if not fixed:
+            return pad_world(make_world(batch_size, device=device, dtype=dtype), circles=self.n_circle_slots - self.n_fixed_circles,
+                             boxes=self.n_box_slots - self.n_fixed_boxes)
+        world = make_world(batch_size, self.segments, self.circles, self.boxes, device=device, dtype=dtype)
+        return pad_world(world, circles=self.n_circle_slots, boxes=self.n_box_slots)
+
+    @property
+    def n_fixed(self) -> int:
+        """Fixed obstacles of every kind: walls and polygon edges, circles, boxes."""
+        return len(self.segments) + len(self.circles) + len(self.boxes)
+
+    def static_map(self, reach: float, device: torch.device | str | None = None, dtype: torch.dtype = torch.float32) -> StaticMap:
+        """The fixed obstacles held once for a whole batch, indexed for sensors that see ``reach`` m
+        (``torchnav.sim.static_map``; ``reach=0`` indexes for clearance only)."""
+        t = lambda rows, width: torch.tensor(rows, dtype=torch.float64).reshape(-1, width)  # noqa: E731
+        return build_static_map(self.bounds, t(self.segments, 4), t(self.circles, 3), t(self.boxes, 5), reach=reach, device=device, dtype=dtype)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain python types (lists, floats, None) for logging and config dumps."""

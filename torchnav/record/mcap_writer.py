@@ -349,17 +349,18 @@ class EpisodeRecorder:
                 out["imu1"] = state.sim.imu
             if self.movers:
                 out["movers1"] = mover_rows(state.sim)
-            w = getattr(state, "world", None)
-            if w is not None:
-                out.update(segments=w.segments, segment_mask=w.segment_mask, circles=w.circles, circle_mask=w.circle_mask,
-                           boxes=w.boxes, box_mask=w.box_mask)
         else:
             out["vel1"] = self.env.task.command(td.get("action"))
         sel = {k: v.index_select(0, idx).detach() for k, v in out.items()}
-        if state is not None and self.camera is not None:  # rendered for the recorded envs only
+        w = getattr(state, "world", None) if state is not None else None
+        if w is not None:  # the recorded envs' obstacles, the map's shared ones included (NavTask.full_world)
+            w = getattr(self.env.task, "full_world", lambda w: w)(w[idx]).detach()
+            sel.update(segments=w.segments, segment_mask=w.segment_mask, circles=w.circles, circle_mask=w.circle_mask,
+                       boxes=w.boxes, box_mask=w.box_mask)
+        if w is not None and self.camera is not None:  # rendered for the recorded envs only
             sim = state.sim[idx]
             mw = mover_world(sim.movers, sim.mover_mask, sim.mover_boxes) if sim.movers.shape[1] else None
-            sel["depth1"], sel["rgb1"] = camera_image(sim.pose, state.world[idx], self.camera, mw, self.styles)
+            sel["depth1"], sel["rgb1"] = camera_image(sim.pose, w, self.camera, mw, self.styles)
         return TensorDict(sel, batch_size=[len(self.envs)])
 
     def _select_multi(self, td: TensorDictBase, state: Any, before: Any) -> TensorDictBase:

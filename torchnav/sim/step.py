@@ -17,6 +17,7 @@ from .movers import BOX_FIELDS, N_MOVER_FIELDS, Movers, check_mover_boxes, mover
 from .params import SimParams
 from .randomize import EnvParams
 from .state import SimState, World, check_world, planar_world
+from .static_map import StaticMap, with_static
 
 
 def check_action(action: Tensor, state: SimState) -> None:
@@ -43,6 +44,7 @@ def step(
     generator: torch.Generator | None = None,
     unroll: bool | None = None,
     env_params: EnvParams | None = None,
+    static: StaticMap | None = None,
 ) -> SimState:
     """Advance every env by ``params.dt``.
 
@@ -59,6 +61,9 @@ def step(
             slots by its size (None, the default); the result is the same up to rounding.
         env_params: per-env limits, actuator delay, wheel noise, lidar imperfections and
             robot radius (``randomize.py``) instead of ``params``' values.
+        static: a map's fixed obstacles shared by the whole batch (``static_map.py``), seen in
+            addition to ``world``'s per-env obstacles, with the same readings as if every env's
+            ``world`` held them.
     Returns:
         The new state; ``state`` is left untouched.
     """
@@ -69,7 +74,8 @@ def step(
     radius = params.robot_radius if env_params is None else env_params.robot_radius
     rows, target = step_movers(state.movers, state.mover_plan, state.mover_mask, params.dt, state.pose[:, :2], radius, state.mover_target)
     movers = Movers(rows, state.mover_mask, state.mover_plan, state.mover_boxes)  # the plan is carried unchanged
-    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, target, queue, world, params, generator, unroll, env_params)
+    return _sense(pose, vel, odom, state.time + params.dt, imu, imu_bias, movers, target, queue, world, params, generator, unroll, env_params,
+                  static=static)
 
 
 def _drive(state: SimState, action: Tensor, params: SimParams, wheel_speeds: bool = False, generator: torch.Generator | None = None,
@@ -107,13 +113,16 @@ def _drive(state: SimState, action: Tensor, params: SimParams, wheel_speeds: boo
 
 
 def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, target, queue, world, params, generator=None, unroll=None,
-           env: EnvParams | None = None, seen: World | None = None, present: Tensor | None = None) -> SimState:
+           env: EnvParams | None = None, seen: World | None = None, present: Tensor | None = None, static: StaticMap | None = None) -> SimState:
     """The state at ``pose`` with its collision, lidar and camera readings (movers included; ``target``
     the waypoint index each patrol and pedestrian heads for).
 
     ``seen``, a world of batch ``B``, replaces the movers' own world as what moves around the robots
     (``robots.py``: each robot's movers and other robots); ``present`` ``(B,)`` bool marks the robots
-    that exist: the others read ``clearance`` +inf and never collide."""
+    that exist: the others read ``clearance`` +inf and never collide. ``static``: the shared fixed
+    obstacles, added to ``world`` near each robot."""
+    if static is not None:
+        world = with_static(world, static, pose[:, :2])
     mw = seen if seen is not None else mover_world(movers.rows, movers.mask, movers.boxes) if movers.rows.shape[1] else None
     radius = params.robot_radius if env is None else env.robot_radius
     clearance = disc_clearance(pose, world, radius)
@@ -157,6 +166,7 @@ def init_state(
     movers: Movers | tuple[Tensor, Tensor] | None = None,
     env_params: EnvParams | None = None,
     delay_steps: int = 0,
+    static: StaticMap | None = None,
 ) -> SimState:
     """A state at ``pose`` ``(B, 3)`` at rest (or moving at ``vel`` ``(B, 2)``), with its lidar
     scan, clearance and camera depth already computed. Odometry starts at the true pose; the
@@ -165,7 +175,7 @@ def init_state(
     ``None`` means no moving obstacles. ``env_params`` (``randomize.py``) gives per-env
     radius and lidar imperfections for the first scan and clearance; ``delay_steps`` is the
     length of the command queue of the actuator delay (the longest delay), filled with
-    zeros (the robot is told to stand)."""
+    zeros (the robot is told to stand). ``static``: a map's fixed obstacles shared by the batch, as for :func:`step`."""
     if pose.dim() != 2 or pose.shape[-1] != 3:
         raise ValueError(f"pose must have shape (B, 3), got {tuple(pose.shape)}")
     b = pose.shape[0]
@@ -179,7 +189,7 @@ def init_state(
     return _sense(
         pose, vel, pose.clone(),  # odom not aliased with pose (aliasing makes torch.compile specialise)
         pose.new_zeros(b), pose.new_zeros(b, n_imu), pose.new_zeros(b, n_imu), Movers(rows, mask, plan, boxes), target,
-        pose.new_zeros(b, delay_steps, 2), world, params, env=env_params,
+        pose.new_zeros(b, delay_steps, 2), world, params, env=env_params, static=static,
     )
 
 

@@ -236,6 +236,10 @@ class NavConfig(Config):
     max_steps: int = count(1, 500)  # steps before truncation
     goal_tolerance: float = positive(0.3)  # m, success when the robot centre is this close to the goal
     check_actions: bool = True  # raise on NaN/inf actions (one host sync per step)
+    # Hold the map's fixed obstacles once for the whole batch, with a grid index of what each place can
+    # see (torchnav/sim/static_map.py; the same readings, less memory and time on big maps): "auto" on
+    # maps with at least 256 fixed obstacles, "on", or "off" (a copy in every env).
+    shared_map: str = one_of("auto", "on", "off", default="auto")
     robot: RobotConfig
     lidar: LidarConfig
     imu: ImuConfig

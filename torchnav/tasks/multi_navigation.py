@@ -83,6 +83,7 @@ class MultiNavTask:
             (bool(cfg.worlds.families) and cfg.robots.scenario == "circle_swap",
              "robots.scenario: circle_swap on procedural worlds (worlds.families; its circle would cross their walls)"),
             (bool(cfg.randomize.ranges()), "randomize (domain randomisation)"),
+            (cfg.shared_map == "on", "shared_map: on (each env holds its copy of the map)"),
             (cfg.observation.history != 1, "observation.history > 1"),
             (cfg.observation.visit_sectors > 0, "observation.visit_sectors"),
             (cfg.action.stop_clearance is not None, "action.stop_clearance"),
@@ -91,7 +92,7 @@ class MultiNavTask:
         bad = [what for on, what in unsupported if on]
         if bad:
             raise ConfigError(f"the multi-robot task does not support {', '.join(bad)} yet")
-        self.nav = NavTask(cfg, num_envs, device, dtype)  # observation, actions, reward weights, the map or the worlds
+        self.nav = NavTask(cfg, num_envs, device, dtype, share_map=False)  # observation, actions, reward weights, the map or the worlds
         self.families = self.nav.families
         rob = cfg.robots
         # On worlds as on maps: starts 2 radii plus the separation apart, goals 2 tolerances plus it.

@@ -17,10 +17,10 @@ from torch import Tensor
 from ..maps import load_map
 from ..maps.free_space import check_room
 from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
-from ..sim.geometry import points_clearance
 from ..sim.kinematics import forward_speed_guard, guard_bearings
 from ..sim.movers import Movers
 from ..sim.randomize import max_delay
+from ..sim.static_map import StaticMap, static_reach
 from ..worlds import RobotPlacement, mix_worlds, slot_counts
 from ..worlds.guide import GUIDE_CELLS, goal_distance
 from ..sim import step as sim_step
@@ -28,19 +28,29 @@ from .base import BatchedTask, EpisodePool, TaskState
 from .config import NavConfig
 from .curriculum import CurriculumState, after_placements
 from .rewards import resolve_weights, reward_terms
-from .sampling import MoverSource, place_movers, place_random_objects, sample_goals, sample_starts
+from .sampling import MoverSource, obstacle_clearance, place_movers, place_random_objects, sample_goals, sample_starts
+
+
+SHARED_MAP_MIN = 256  # fixed obstacles from which shared_map: auto holds a map once for the batch
 
 
 class NavTask(BatchedTask):
-    """Configured navigation task for ``num_envs`` envs on ``device``."""
+    """Configured navigation task for ``num_envs`` envs on ``device``. ``share_map=False`` keeps a copy
+    of the map in every env whatever ``cfg.shared_map`` says (the multi-robot task's)."""
 
-    def __init__(self, cfg: NavConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32):
+    def __init__(self, cfg: NavConfig, num_envs: int, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32,
+                 share_map: bool = True):
         super().__init__(cfg, num_envs, device, dtype)
         self.families = tuple(cfg.worlds.families)  # procedural worlds instead of the map when non-empty
         self.spec = None if self.families else load_map(cfg.map)  # the map; None with procedural worlds
         if self.spec is not None:  # a map with no room for a start or a goal is refused before any episode
             check_room(self.spec, cfg.robot.radius + cfg.reset.start_clearance, cfg.reset.goal_clearance)
         self.params = cfg.sim_params()
+        share = share_map and self.spec is not None and (cfg.shared_map == "on" or (cfg.shared_map == "auto" and self.spec.n_fixed >= SHARED_MAP_MIN))
+        # The map's fixed obstacles once for the batch (sim/static_map.py): indexed for the sensors, and
+        # for the clearance tests of the reset samplers. None: every env's world holds a copy.
+        self.static: StaticMap | None = self.spec.static_map(static_reach(self.params), self.device, dtype) if share else None
+        self.static_near: StaticMap | None = self.spec.static_map(0.0, self.device, dtype) if share else None
         self.randomized = cfg.randomize.ranges()  # domain randomisation: parameter -> (min, max)
         self.delay_steps = max_delay(self.randomized)
         # The largest robot the episode may draw decides how much room a start needs.
@@ -66,13 +76,25 @@ class NavTask(BatchedTask):
             self.base_world = None  # every episode brings its own world
         else:
             # Fixed obstacles with every random slot masked off; resets fill the random slots.
-            self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype)
+            self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype, fixed=self.static is None)
         scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
         self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
         self._obs_scale = self._make_obs_scale()
         guarded = cfg.action.stop_clearance is not None
         self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device) if guarded else None
         self._sim_step = sim_step
+
+    def full_world(self, world: World) -> World:
+        """``world`` (some envs' ``NavState.world``) with the map's fixed obstacles as its first slots, as
+        every env holds them without ``shared_map``: for renderers, recorders and planners that read
+        every obstacle. ``world`` itself when the map is not shared."""
+        if self.static is None:
+            return world
+        fixed = self.spec.build_world(world.batch_size[0], device=world.device, dtype=world.boxes.dtype)
+        nc, nb = self.spec.n_fixed_circles, self.spec.n_fixed_boxes
+        return world.replace(segments=fixed.segments, segment_mask=fixed.segment_mask,
+                             circles=torch.cat((fixed.circles[:, :nc], world.circles), 1), circle_mask=torch.cat((fixed.circle_mask[:, :nc], world.circle_mask), 1),
+                             boxes=torch.cat((fixed.boxes[:, :nb], world.boxes), 1), box_mask=torch.cat((fixed.box_mask[:, :nb], world.box_mask), 1))
 
     def compile_step(self) -> None:
         """Run the simulator step through ``torch.compile`` from now on (same results; the first
@@ -157,13 +179,14 @@ class NavTask(BatchedTask):
         else:
             world = self.base_world[idx]
             if given is None:
-                start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator)
-                goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, generator)
+                start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator, static=self.static_near)
+                goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, generator,
+                                       static=self.static_near)
             else:
                 start, goal = given
             world = place_random_objects(
                 world, self.spec, start[:, :2], goal, rc.candidates, generator,
-                start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance,
+                start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance, static=self.static_near,
             )
             family = torch.zeros(n, dtype=torch.int64, device=self.device)
             difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
@@ -178,7 +201,7 @@ class NavTask(BatchedTask):
         else:
             env_params = nominal_env_params(self.params, n, start)
         sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
-                         delay_steps=self.delay_steps)
+                         delay_steps=self.delay_steps, static=self.static)
         crumbs = torch.full((n, self.visit_memory, 2), FAR, dtype=self.dtype, device=self.device)
         crumbs[:, :1] = sim.odom[:, None, :2].detach()  # the first breadcrumb marks the start (no memory without visit_sectors)
         crumb_count = torch.ones(n, dtype=torch.int64, device=self.device)
@@ -202,7 +225,7 @@ class NavTask(BatchedTask):
         # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
         where = self.spec if bounds is None else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
         return place_movers(world, where, start_xy, goal, rc.candidates, generator,
-                            start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance)
+                            start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance, static=self.static_near)
 
     def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator, robots: RobotPlacement | None = None,
                    ) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
@@ -306,7 +329,7 @@ class NavTask(BatchedTask):
         xmin, ymin, xmax, ymax = self.spec.bounds
         for name, xy, need in (("start", start[:, :2], self.max_radius), ("goal", goal, 0.0)):
             edge = torch.stack((xy[:, 0] - xmin, xmax - xy[:, 0], xy[:, 1] - ymin, ymax - xy[:, 1]), -1).amin(-1)
-            clear = torch.minimum(points_clearance(xy[:, None], world)[:, 0], edge)
+            clear = torch.minimum(obstacle_clearance(xy[:, None], world, self.static_near)[:, 0], edge)
             bad = (clear < need) if need > 0 else (clear <= 0)
             if bad.any():
                 what = f"closer than the robot's radius {need:g} m to" if need > 0 else "inside"
@@ -342,7 +365,7 @@ class NavTask(BatchedTask):
                                       self._guard_bearings)
             twist = torch.stack((torch.minimum(twist[:, 0], cap), twist[:, 1]), dim=-1)
         sim = self._sim_step(state.sim, twist, state.world, self.params, generator=generator,
-                             env_params=state.env_params if self.randomized else None)
+                             env_params=state.env_params if self.randomized else None, static=self.static)
         dist, bearing = self.goal_vector(sim.pose, state.goal)
         collision = sim.collided
         success = (dist < self.cfg.goal_tolerance) & ~collision

@@ -4,7 +4,7 @@ Each sampler draws ``K`` candidates per env at once, tests them all with one
 batched geometry call, and keeps a valid one. When no candidate of an env is
 valid, each sampler has a defined fallback (documented per function), so a
 reset never blocks and never loops an unbounded number of times. Memory stays
-bounded on maps with hundreds of obstacles (:func:`_clearance`).
+bounded on maps with hundreds of obstacles (:func:`obstacle_clearance`).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from ..maps.free_space import free_points
 from ..maps.spec import RandomCircles, RandomMovers
 from ..sim import World, pad_world, points_clearance
 from ..sim.movers import BOX_FIELDS, PATROL, PEDESTRIAN, Movers
+from ..sim.static_map import StaticMap, static_clearance
 from ..worlds.layout import uniform
 
 _BIG = 1e9
@@ -30,9 +31,12 @@ _BIG = 1e9
 _CHUNK_ELEMENTS = 1 << 20
 
 
-def _clearance(points: Tensor, world: World) -> Tensor:
+def obstacle_clearance(points: Tensor, world: World, static: StaticMap | None = None) -> Tensor:
     """:func:`points_clearance` of ``points`` ``(n, P, 2)`` -> ``(n, P)`` m, in chunks along ``P`` so that
-    no ``(n, chunk, obstacles)`` temporary exceeds ``_CHUNK_ELEMENTS`` (at least one point per chunk)."""
+    no ``(n, chunk, obstacles)`` temporary exceeds ``_CHUNK_ELEMENTS`` (at least one point per chunk);
+    with ``static``, the nearer of ``world``'s obstacles and the shared map's (``sim/static_map.py``)."""
+    if static is not None:
+        return torch.minimum(obstacle_clearance(points, world), static_clearance(static, points, _CHUNK_ELEMENTS))
     n, p = points.shape[:2]
     per_point = n * max(world.segments.shape[1], world.circles.shape[1], world.boxes.shape[1], 1)
     step = max(1, _CHUNK_ELEMENTS // per_point)
@@ -69,7 +73,7 @@ def _away(cand: Tensor, clear: Tensor, need: float, avoid: Tensor | None, avoid_
 
 
 def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: torch.Generator,
-                  avoid: Tensor | None = None, avoid_need: float = 0.0) -> tuple[Tensor, Tensor]:
+                  avoid: Tensor | None = None, avoid_need: float = 0.0, static: StaticMap | None = None) -> tuple[Tensor, Tensor]:
     """Start poses ``(n, 3)`` whose position is at least ``need`` m from every obstacle of ``world``
     and from the world's edge, with a uniform random heading; with ``avoid`` ``(n, J, 2)``, also at
     least ``avoid_need`` m from each of those points (the other robots' starts: multi_navigation.py).
@@ -77,14 +81,15 @@ def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: t
     Fallback: the free cell of ``spec``'s room grid (``maps.free_space.free_points``) nearest the
     candidate with the largest clearance, which the world's fixed obstacles leave free when
     ``world`` holds only ``spec``'s fixed obstacles. Also returns whether a valid candidate was
-    found ``(n,)``.
+    found ``(n,)``. ``static``: the map's fixed obstacles when ``world`` holds only its per-env objects
+    (``sim/static_map.py``).
     """
     n = world.batch_size[0]
     like = world.segments
     xmin, ymin, xmax, ymax = spec.bounds
     m = min(need, 0.49 * min(xmax - xmin, ymax - ymin))
     xy = torch.stack((uniform(xmin + m, xmax - m, (n, k), generator, like), uniform(ymin + m, ymax - m, (n, k), generator, like)), -1)
-    clear = _away(xy, _clearance(xy, world), need, avoid, avoid_need)
+    clear = _away(xy, obstacle_clearance(xy, world, static), need, avoid, avoid_need)
     idx, found = _pick(clear >= need, clear)
     pos = _gather(xy, idx)
     if not bool(found.all()):
@@ -100,11 +105,11 @@ def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: t
 
 def sample_goals(
     world: World, spec: MapSpec, start_xy: Tensor, r_min: float, r_max: Tensor, need: float, k: int, generator: torch.Generator,
-    avoid: Tensor | None = None, avoid_need: float = 0.0,
+    avoid: Tensor | None = None, avoid_need: float = 0.0, static: StaticMap | None = None,
 ) -> tuple[Tensor, Tensor]:
     """Goals ``(n, 2)`` at a distance in ``[r_min, r_max]`` from ``start_xy`` ``(n, 2)``, inside the
     world and at least ``need`` m from every obstacle (and ``avoid_need`` m from each point of ``avoid``
-    ``(n, J, 2)``, as :func:`sample_starts`).
+    ``(n, J, 2)``, and ``static`` as for :func:`sample_starts`).
 
     ``r_max`` is a 0-d tensor (the curriculum radius). Distance and direction are
     uniform. Fallback, in order: a valid goal drawn uniformly over the whole world
@@ -119,7 +124,7 @@ def sample_goals(
     xmin, ymin, xmax, ymax = spec.bounds
     anywhere = torch.stack((uniform(xmin, xmax, (n, k), generator, like), uniform(ymin, ymax, (n, k), generator, like)), -1)
     cand = torch.cat((near, anywhere), dim=1)  # (n, 2k): near candidates first
-    clear = _away(cand, _clearance(cand, world), need, avoid, avoid_need)
+    clear = _away(cand, obstacle_clearance(cand, world, static), need, avoid, avoid_need)
     sep = (cand - start_xy[:, None, :]).norm(dim=-1)
     ok = (clear >= need) & _inside(cand, spec.bounds, need) & (sep >= r_min)
     score = torch.where(_inside(cand, spec.bounds, 0.0), clear, torch.full_like(clear, -_BIG / 4))
@@ -140,7 +145,7 @@ def _nearest(xy: Tensor, points: Tensor) -> Tensor:
 
 def place_random_objects(
     world: World, spec: MapSpec, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
-    *, start_need: float = 0.0, goal_need: float = 0.0,
+    *, start_need: float = 0.0, goal_need: float = 0.0, static: StaticMap | None = None,
 ) -> World:
     """Fill the random box and circle slots of ``world`` (batch ``n``) with fresh objects.
 
@@ -149,14 +154,15 @@ def place_random_objects(
     ``goal_xy`` (likewise) and ``margin`` m from every fixed obstacle, wall and object placed
     before it (tested on its circumscribed circle, so the guarantee is conservative).
     ``start_need``/``goal_need`` are the task's own clearances, which a map's smaller
-    ``clearance`` must not undo.
+    ``clearance`` must not undo. ``static``: the map's fixed obstacles when ``world`` holds only the
+    random slots (``sim/static_map.py``).
     Fallback: an object with no valid candidate is left out of this episode (its
     slot is masked off).
     """
     n, like = start_xy.shape[0], start_xy
     rb, rcirc = spec.random_boxes, spec.random_circles
     nb, nc = (rb.count if rb else 0), (rcirc.count if rcirc else 0)
-    nb0, nc0 = spec.n_fixed_boxes, spec.n_fixed_circles
+    nb0, nc0 = (spec.n_fixed_boxes, spec.n_fixed_circles) if static is None else (0, 0)
     if nb + nc == 0:
         return world
     # Forget the previous episode's random objects: candidates are tested against fixed obstacles only.
@@ -180,7 +186,7 @@ def place_random_objects(
     clear = torch.tensor([max(c, start_need) for c, _ in per_obj], dtype=like.dtype, device=like.device)[None, :, None]
     clear_g = torch.tensor([max(c, goal_need) for c, _ in per_obj], dtype=like.dtype, device=like.device)[None, :, None]
     margin = torch.tensor([mg for _, mg in per_obj], dtype=like.dtype, device=like.device)[None, :, None]
-    gap = _clearance(xy.reshape(n, m * k, 2), fixed).reshape(n, m, k) - rc
+    gap = obstacle_clearance(xy.reshape(n, m * k, 2), fixed, static).reshape(n, m, k) - rc
     ok = (
         (gap >= margin)
         & (_nearest(xy, start_xy) - rc >= clear)
@@ -240,7 +246,7 @@ class MoverSource:
 
 def place_movers(
     world: World, spec: MapSpec | MoverSource, start_xy: Tensor, goal_xy: Tensor, k: int, generator: torch.Generator,
-    *, start_need: float = 0.0, goal_need: float = 0.0,
+    *, start_need: float = 0.0, goal_need: float = 0.0, static: StaticMap | None = None,
 ) -> Movers:
     """The map's movers (``moving_circles`` or ``moving_boxes``) for a batch ``n`` of episodes (``rows (n, M, 9)``, ``mask (n, M)``,
     ``plan`` and ``boxes``: ``(n, M, 3)`` for ``moving_boxes``, every mover a box; ``(n, 0, 3)`` for discs).
@@ -250,7 +256,7 @@ def place_movers(
     episode's random objects, and from each other; inside the region); a mover with no valid
     candidate is left out (masked off). Headings are uniform, speeds uniform in ``speed``;
     patrols and pedestrians get ``waypoints`` points uniform in the region (shrunk by
-    their radius) and head for the first.
+    their radius) and head for the first. ``static`` as for :func:`place_random_objects`.
     """
     mc = spec.movers
     n, like = start_xy.shape[0], start_xy
@@ -258,7 +264,7 @@ def place_movers(
     shim = _MoverPlacement(world.boxes.shape[1], world.circles.shape[1], region,
                            RandomCircles(count=mc.count, radius=mc.radius, clearance=mc.clearance, margin=mc.margin))
     placed = place_random_objects(pad_world(world, circles=world.circles.shape[1] + mc.count), shim, start_xy, goal_xy, k, generator,
-                                  start_need=start_need, goal_need=goal_need)
+                                  start_need=start_need, goal_need=goal_need, static=static)
     disc, mask = placed.circles[:, -mc.count:], placed.circle_mask[:, -mc.count:]
     heading = uniform(-math.pi, math.pi, (n, mc.count), generator, like)
     speed = uniform(mc.speed[0], mc.speed[1], (n, mc.count), generator, like)
