@@ -15,6 +15,8 @@ import torch
 from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.state import World, make_world, pad_world
 
+from .map_server import IDENTITY, from_map_frame, to_map_frame
+
 
 class MapError(ValueError):
     """A map file could not be found, parsed or validated. The message names the file and key."""
@@ -78,7 +80,8 @@ class MapSpec:
     tabled in docs/maps.md, "Loading a map". ``movers``: the moving discs (``moving_circles``) or
     boxes (``moving_boxes``) the task places on reset, or None. ``styles``: the camera heights and colours
     of the fixed circles and boxes that declare ``height`` or ``color`` (slot ``i`` of a kind is its
-    ``i``-th fixed obstacle)."""
+    ``i``-th fixed obstacle). ``frame``: the pose ``(x m, y m, yaw rad)`` of the world's origin in the ROS
+    ``map`` frame of a map_server map (docs/maps.md, "ROS map_server maps"); the identity for other maps."""
 
     name: str
     source: str
@@ -90,6 +93,7 @@ class MapSpec:
     random_circles: RandomCircles | None = None
     movers: RandomMovers | None = None
     styles: ObstacleStyles = ObstacleStyles()
+    frame: tuple[float, float, float] = IDENTITY
 
     @property
     def n_fixed_boxes(self) -> int:
@@ -126,6 +130,15 @@ class MapSpec:
         "What build_world makes")."""
         fixed = make_world(batch_size, self.segments, self.circles, self.boxes, device=device, dtype=dtype)
         return pad_world(fixed, circles=self.n_circle_slots, boxes=self.n_box_slots)
+
+    def to_map_frame(self, points: Any) -> Any:
+        """Points ``(..., 2)`` ``[x, y]`` m or poses ``(..., 3)`` ``[x, y, yaw rad]`` of this world in the
+        ROS ``map`` frame (:func:`.map_server.to_map_frame`; a tensor stays a tensor)."""
+        return to_map_frame(self.frame, points)
+
+    def from_map_frame(self, points: Any) -> Any:
+        """Points or poses of the ROS ``map`` frame (an RViz goal) in this world: the inverse of :meth:`to_map_frame`."""
+        return from_map_frame(self.frame, points)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain python types (lists, floats, None) for logging and config dumps."""
