@@ -45,8 +45,10 @@ class Grid:
 
 
 def is_map_server(data: Any) -> bool:
-    """Whether a parsed YAML document is a map_server map: it has ``image`` and no torchnav ``size``."""
-    return isinstance(data, dict) and "image" in data and "size" not in data
+    """Whether a parsed YAML document is a map_server map: it has ``image`` (or another key of the
+    map_server format, none of which a torchnav map has: then a missing ``image`` is named) and no
+    torchnav ``size``."""
+    return isinstance(data, dict) and "size" not in data and any(k in data for k in KEYS + OPTIONAL_KEYS)
 
 
 def _negate(ctx: Ctx, v: Any) -> bool:
