@@ -361,3 +361,9 @@ def test_embedding_adds_obstacles_in_torchnav_coordinates(tmp_path):
     plain = load_map(tmp_path / "map.yaml")
     assert spec.name == "furnished" and spec.size == plain.size and spec.frame == plain.frame
     assert spec.boxes == ((-0.3, 0.0, 0.1, 0.1, 0.0), *plain.boxes) and spec.circles == ((0.3, -0.2, 0.05),)
+
+
+def test_docs_show_the_example_files_verbatim():
+    docs = (ROOT / "docs" / "maps.md").read_text()
+    for name in ("lab.yaml", "lab_clutter.yaml"):
+        assert (LAB / name).read_text() in docs, name
