@@ -326,6 +326,7 @@ EMBED_BAD = {
     "yaml not yaml": ("map_server: {yaml: map.pgm}\n", "map_server.yaml: "),
     "not a map_server file": ("map_server: {yaml: plain.yaml}\n", "not a map_server map"),
     "bad field inside": ("map_server: {yaml: bad.yaml}\n", "map_server.yaml: "),
+    "a map_server key at the top": ("map_server: {yaml: map.yaml}\nresolution: 0.05\n", "resolution: unknown key"),
     "unknown option": ("map_server: {yaml: map.yaml, unkown: free}\n", "map_server.unkown: unknown key (did you mean 'unknown'?)"),
     "crop not a bool": ("map_server: {yaml: map.yaml, crop: 1}\n", "map_server.crop: expected true or false"),
     "boundary twice": ("map_server: {yaml: map.yaml}\nwalls: boundary\n", "walls[0]: map_server.boundary (true by default)"),
@@ -367,3 +368,16 @@ def test_docs_show_the_example_files_verbatim():
     docs = (ROOT / "docs" / "maps.md").read_text()
     for name in ("lab.yaml", "lab_clutter.yaml"):
         assert (LAB / name).read_text() in docs, name
+
+
+def test_a_map_server_map_among_the_shipped_maps_is_listed_and_loads_by_name(tmp_path, monkeypatch):
+    from torchnav import yamlcheck
+    from torchnav.maps import loader
+
+    write_map(tmp_path, room(), "site")
+    (tmp_path / "plain.yaml").write_text("size: [2, 2]\n")
+    for module in (yamlcheck, loader):  # the data folder, as importlib.resources finds it
+        monkeypatch.setattr(module, "shipped_folder", lambda package: tmp_path)
+    assert available_maps() == ["plain", "site"]
+    site = load_map("site")
+    assert site.name == "site" and site.size == pytest.approx((1.2, 0.8)) and site.frame == pytest.approx((0.8, 0.6, 0.0))

@@ -46,9 +46,9 @@ class Grid:
 
 def is_map_server(data: Any) -> bool:
     """Whether a parsed YAML document is a map_server map: it has ``image`` (or another key of the
-    map_server format, none of which a torchnav map has: then a missing ``image`` is named) and no
-    torchnav ``size``."""
-    return isinstance(data, dict) and "size" not in data and any(k in data for k in KEYS + OPTIONAL_KEYS)
+    map_server format, none of which a torchnav map has: then a missing ``image`` is named) and neither
+    of the torchnav keys ``size`` and ``map_server``."""
+    return isinstance(data, dict) and not {"size", "map_server"} & set(data) and any(k in data for k in KEYS + OPTIONAL_KEYS)
 
 
 def _negate(ctx: Ctx, v: Any) -> bool:
