@@ -330,8 +330,9 @@ def parse_map(
     if data is None:
         raise ctx.fail("", "the map file is empty; it needs at least `size: [w, h]`")
     if ms.is_map_server(data):
-        lay = _map_server(ctx, ms.read_grid(ctx, data, base_dir), *_options(ctx, "", {})[:2])
-        return MapSpec(name=default_name, source=source, size=lay.size, segments=_boundary(lay.size),
+        unknown, crop, boundary = _options(ctx, "", {})  # the defaults: a map_server file has no torchnav options
+        lay = _map_server(ctx, ms.read_grid(ctx, data, base_dir), unknown, crop)
+        return MapSpec(name=default_name, source=source, size=lay.size, segments=_boundary(lay.size) if boundary else (),
                        boxes=tuple(tuple(b) for b in lay.boxes.tolist()), frame=lay.frame)
     d = check_mapping(ctx, data, "", (), _TOP_KEYS)
     name = d.get("name", default_name)
