@@ -4,9 +4,11 @@ difficulties, the same seeded episodes for any checkpoints and the classical con
     python recipes/benchmark.py checkpoints/td3_arena_actor.pt                 # full suite, 200 episodes a cell
     python recipes/benchmark.py CKPT_A CKPT_B --episodes 50 --out runs/bench
     python recipes/benchmark.py --maps arena maze --families forest --levels easy=0.2 hard=0.8 --controllers reactive astar
+    python recipes/benchmark.py CKPT --map-file examples/maps/lab.yaml --map-file my_maps/office.yaml
 
 Cells: each map of ``--maps`` (default every shipped map; goals anywhere, curriculum
-off) and each family of ``--families`` (default ``rooms corridors cave forest open fences``) at
+off), each map file of ``--map-file`` (repeatable: a torchnav or ROS map_server YAML,
+docs/maps.md; labelled by its path, played like a shipped map) and each family of ``--families`` (default ``rooms corridors cave forest open fences``) at
 each level of ``--levels`` (default ``easy=0.2 medium=0.5 hard=0.8``, a difficulty in
 [0, 1]): every episode of such a cell is a fresh world of that family at that difficulty,
 with the generator's start and reachable goal (curriculum off; docs/worlds.md).
@@ -21,8 +23,10 @@ their generated cells read n/a.
 Seeds: cell ``i`` plays episodes with env seed ``--seed + 10007 * i`` (default ``--seed``
 1000000), ``i`` its index in the canonical suite: shipped maps by ``MAP_INDEX`` (the order
 they were added in), then ``MAX_LEVELS`` slots per family (``FAMILIES`` order) for its level's position
-in ``--levels``. A cell's seed does not depend on which other cells run, so a subset
-reproduces the full suite's figures. The recipes train on env seed ``seed`` (0 in every
+in ``--levels``, and a map file ``FILE_BASE`` plus the CRC-32 of the file's bytes modulo
+``FILE_SLOTS`` (so the same file has the same seed wherever it lies; two different files share
+one once in 10,000 pairs). A cell's seed does not depend on which
+other cells run, so a subset reproduces the full suite's figures. The recipes train on env seed ``seed`` (0 in every
 shipped config) and evaluate on ``10000 + seed`` and ``20000 + seed``, compare.py and
 evaluate.py on 20000: the benchmark's seeds (1000000 and up) are disjoint from all of them
 for any training seed below 980000.
@@ -39,7 +43,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import zlib
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -54,7 +60,7 @@ from compare import _pct, evaluate_method, load_methods, method_configs  # noqa:
 from torchnav.config import to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, PlannerController  # noqa: E402
 from torchnav.evaluation import eval_config, paired_successes  # noqa: E402
-from torchnav.maps import available_maps  # noqa: E402
+from torchnav.maps import MapError, available_maps, load_map  # noqa: E402
 from torchnav.tasks import NavConfig  # noqa: E402
 from torchnav.worlds import FAMILIES  # noqa: E402
 
@@ -67,16 +73,17 @@ MAP_SLOTS, MAX_LEVELS = 100, 16  # canonical cell index: maps in [0, MAP_SLOTS),
 # moves the seeds (and figures) of the cells before it. tests/test_benchmark.py checks that every
 # shipped map has its index.
 MAP_INDEX = {name: i for i, name in enumerate(("arena", "empty", "maze", "street", "warehouse"))}
+FILE_BASE, FILE_SLOTS = 10_000, 10_000  # map files' cell indices: past any family's, seeds below 2**31
 CHECK_EPISODES = 16  # episodes per cell compared before the run to refuse a checkpoint with other scenarios
 
 
 @dataclass(frozen=True)
 class Cell:
-    """One cell of the suite: a shipped map, or a family of generated worlds at one difficulty."""
+    """One cell of the suite: a shipped map or a map file, or a family of generated worlds at one difficulty."""
 
-    label: str  # "arena", "forest/hard"
+    label: str  # "arena", "examples/maps/lab.yaml", "forest/hard"
     kind: str  # "map" or "world"
-    name: str  # map or family name
+    name: str  # shipped map name, map file path or family name
     level: str | None  # level name ("hard"), None for a map
     difficulty: float | None  # in [0, 1], None for a map
     seed: int  # env seed of the cell's episodes
@@ -109,10 +116,17 @@ def parse_levels(items: list[str]) -> dict[str, float]:
     return levels
 
 
-def suite(maps: list[str], families: list[str], levels: dict[str, float], seed: int) -> list[Cell]:
-    """The cells in run order (maps, then each family at each level), each with its seed."""
+def file_index(path: str) -> int:
+    """The canonical cell index of the map file ``path``, from its bytes: not from its path, which differs
+    between checkouts and working folders."""
+    return FILE_BASE + zlib.crc32(Path(path).read_bytes()) % FILE_SLOTS
+
+
+def suite(maps: list[str], families: list[str], levels: dict[str, float], seed: int, files: list[str] = ()) -> list[Cell]:
+    """The cells in run order (shipped maps, map ``files``, then each family at each level), each with its seed."""
     fams = list(FAMILIES)
     cells = [Cell(m, "map", m, None, None, seed + SEED_STRIDE * MAP_INDEX[m]) for m in maps]
+    cells += [Cell(os.path.normpath(f), "map", f, None, None, seed + SEED_STRIDE * file_index(f)) for f in files]
     for f in families:
         for k, (level, d) in enumerate(levels.items()):
             index = MAP_SLOTS + MAX_LEVELS * fams.index(f) + k
@@ -227,6 +241,8 @@ def main(argv: list[str]) -> dict[str, Any]:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoints", nargs="*", help="actor.pt / checkpoint.pt files of navigation policies")
     p.add_argument("--maps", nargs="*", default=None, help="shipped maps (default all; none: --maps)")
+    p.add_argument("--map-file", action="append", default=[], metavar="PATH",
+                   help="a map file (torchnav or ROS map_server YAML) as one more cell; repeatable")
     p.add_argument("--families", nargs="*", default=None, help=f"world families (default all: {' '.join(FAMILIES)}; none: --families)")
     p.add_argument("--levels", nargs="+", default=list(DEFAULT_LEVELS), help=f"NAME=DIFFICULTY (default {' '.join(DEFAULT_LEVELS)})")
     p.add_argument("--controllers", nargs="*", default=list(DEFAULT_CONTROLLERS),
@@ -245,7 +261,14 @@ def main(argv: list[str]) -> dict[str, Any]:
         p.error("--seed must be >= 0")
     for m in maps:
         if m not in available_maps():
-            p.error(f"--maps: unknown map {m!r}; shipped maps: {', '.join(available_maps())} (compare.py takes map files)")
+            p.error(f"--maps: unknown map {m!r}; shipped maps: {', '.join(available_maps())} (a map file: --map-file PATH)")
+    for f in a.map_file:
+        if not f.endswith((".yaml", ".yml")):
+            p.error(f"--map-file: {f!r}: expected a .yaml or .yml map file (a shipped map: --maps {f})")
+        try:
+            load_map(f)  # every problem of the file now, before any episode
+        except MapError as e:
+            p.error(f"--map-file: {e}")
     for f in families:
         if f not in FAMILIES:
             p.error(f"--families: unknown family {f!r}; known: {', '.join(FAMILIES)}")
@@ -256,9 +279,9 @@ def main(argv: list[str]) -> dict[str, Any]:
         levels = parse_levels(a.levels)
     except ValueError as e:
         p.error(str(e))
-    cells = suite(maps, families, levels, a.seed)
+    cells = suite(maps, families, levels, a.seed, a.map_file)
     if not cells:
-        p.error("no cells: give --maps or --families")
+        p.error("no cells: give --maps, --map-file or --families")
     if len({c.label for c in cells}) < len(cells):
         p.error(f"a cell is given twice: {' '.join(c.label for c in cells)}")
     if not a.checkpoints and not a.controllers:

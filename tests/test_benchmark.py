@@ -137,6 +137,10 @@ def test_eval_config_replaces_worlds_and_maps_turn_them_off():
     (["--levels", "hard=1.5"], "must be in [0, 1]"),
     (["--levels", "a=0.1", "a=0.2"], "given twice"),
     (["--maps", "--families"], "no cells"),
+    (["--map-file", "nowhere/lab.yaml"], "--map-file: nowhere/lab.yaml: map file not found"),
+    (["--map-file", "arena"], "expected a .yaml or .yml map file (a shipped map: --maps arena)"),
+    (["--map-file", "tests/data/dense_room.png"], "expected a .yaml or .yml map file"),
+    (["--map-file", "examples/maps/lab.yaml", "--map-file", "./examples/maps/lab.yaml"], "given twice"),
     (["--maps", "arena", "arena"], "given twice"),
     (["--episodes", "0"], "--episodes must be >= 1"),
 ])
@@ -145,6 +149,46 @@ def test_bad_arguments_stop_before_any_work(tmp_path, capsys, args, message):
         benchmark.main(args + ["--out", str(tmp_path / "out")])
     assert message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_bad_map_file_is_refused_before_any_work(tmp_path, capsys):
+    (tmp_path / "lab.yaml").write_text("image: lab.pgm\nresolution: -0.05\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.2\n")
+    with pytest.raises(SystemExit):
+        benchmark.main(["--map-file", str(tmp_path / "lab.yaml"), "--out", str(tmp_path / "out")])
+    assert f"--map-file: {tmp_path / 'lab.yaml'}: resolution: expected a positive number" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
+
+
+def test_map_files_are_map_cells_whose_seeds_follow_the_file(tmp_path):
+    lab = ROOT / "examples" / "maps" / "lab.yaml"
+    (tmp_path / "copy.yaml").write_bytes(lab.read_bytes())
+    cells = benchmark.suite(["arena"], ["rooms"], {"easy": 0.2}, benchmark.SEED_BASE, [str(lab), str(tmp_path / "copy.yaml")])
+    assert [c.kind for c in cells] == ["map", "map", "map", "world"] and cells[1].label == str(lab) and cells[1].name == str(lab)
+    assert cells[1].seed == cells[2].seed  # the same bytes wherever the file lies
+    alone = benchmark.suite([], [], {}, benchmark.SEED_BASE, [str(lab)])
+    assert alone[0].seed == cells[1].seed  # nor on the other cells
+    assert {c.label: c.seed for c in cells if c.label in ("arena", "rooms/easy")} == {
+        c.label: c.seed for c in benchmark.suite(["arena"], ["rooms"], {"easy": 0.2}, benchmark.SEED_BASE)}
+    index = benchmark.file_index(str(lab))
+    assert benchmark.FILE_BASE <= index < benchmark.FILE_BASE + benchmark.FILE_SLOTS
+    assert benchmark.FILE_BASE > benchmark.MAP_SLOTS + benchmark.MAX_LEVELS * len(benchmark.FAMILIES)  # past every family's slots
+    assert benchmark.SEED_BASE + benchmark.SEED_STRIDE * (benchmark.FILE_BASE + benchmark.FILE_SLOTS) < 2**31
+    cfg = cells[1].config(NavConfig())
+    assert cfg.map == str(lab) and cfg.curriculum.mode == "off"
+    assert all(benchmark.runs_on(make_controller(n), cells[1]) for n in CONTROLLERS)  # the planners plan on its spec
+
+
+@pytest.mark.slow  # about 15 s: a tool's end-to-end run, outside the default suite's budget
+def test_a_map_server_file_cell_runs_end_to_end(tmp_path):
+    lab = "examples/maps/lab.yaml"
+    doc = benchmark.main(["--maps", "--families", "--map-file", str(ROOT / lab), "--controllers", "reactive", "astar",
+                          "--episodes", "2", "--threads", "1", "--out", str(tmp_path)])
+    (cell,) = doc["cells"]
+    assert cell["label"] == str(ROOT / lab) and cell["configs"]["astar"]["map"] == str(ROOT / lab)
+    assert cell["seed"] == benchmark.SEED_BASE + benchmark.SEED_STRIDE * benchmark.file_index(str(ROOT / lab))
+    for m in ("reactive", "astar"):
+        assert doc["results"][m][cell["label"]]["episodes"] == 2
+    assert set(doc["planning"]["astar"]) == {cell["label"]}
 
 
 def test_missing_or_corrupt_checkpoint_is_named(tmp_path):

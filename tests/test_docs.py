@@ -23,7 +23,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 BLOCK = re.compile(r"(?:<!-- file: (?P<file>\S+) -->\n)?```(?P<lang>\w*)\n(?P<code>.*?)```", re.S)
-LINKED = ("checkpoints", "maps", "recipes", "tests")
+LINKED = ("checkpoints", "examples", "maps", "recipes", "tests")
 
 RUNNER = textwrap.dedent("""
     import contextlib, io, sys, traceback

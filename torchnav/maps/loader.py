@@ -1,8 +1,9 @@
 """YAML map files -> :class:`~torchnav.maps.spec.MapSpec`.
 
 A map file describes one static world (walls, polygon outlines, fixed circles
-and boxes, an occupancy image) plus how many objects the task should re-place at
-random on every reset. The schema is documented key by key in ``docs/maps.md``.
+and boxes, an occupancy image, a ROS map_server map) plus how many objects the task should
+re-place at random on every reset. The schema is documented key by key in ``docs/maps.md``.
+A ROS map_server YAML (``image`` and no ``size``) loads as it is (:mod:`.map_server`).
 Parsing is strict: an unknown key, a wrong type or an obstacle outside the world
 raises :class:`MapError` naming the file and the key path
 (``maps/foo.yaml: boxes[2].size: ...``), because a typo that is silently ignored
@@ -16,7 +17,8 @@ import os
 from typing import Any
 
 from ..yamlcheck import (Ctx, check_bool, check_count, check_grey_level, check_image, check_list, check_mapping, check_number, check_range, check_vector, load_named,
-                         shipped_folder, shipped_names, show)
+                         load_yaml, read_named, shipped_folder, shipped_names, show)
+from . import map_server as ms
 from .occupancy import ImageError, mask_boxes, read_mask
 from ..sim.camera import ObstacleStyles
 from ..sim.params import is_rgb
@@ -47,12 +49,18 @@ def _inside(ctx: Ctx, key: str, what: str, xs: list[float], ys: list[float], siz
             )
 
 
-def _walls(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
+def _boundary(size: tuple[float, float]) -> tuple:
+    """The world's four edges as walls, counter-clockwise: bottom, right, top, left."""
+    hw, hh = size[0] / 2, size[1] / 2
+    return ((-hw, -hh, hw, -hh), (hw, -hh, hw, hh), (hw, hh, -hw, hh), (-hw, hh, -hw, -hh))
+
+
+def _walls(ctx: Ctx, v: Any, size: tuple[float, float], boundary: bool = False) -> tuple:
+    """The ``walls`` segments; ``boundary``: the world's edges are walls already (``map_server.boundary``)."""
     if v == "boundary":
         v = ["boundary"]
     if not isinstance(v, list):
         raise ctx.fail("walls", f"expected 'boundary' or a list of walls, got {show(v)}")
-    hw, hh = size[0] / 2, size[1] / 2
     segments: list[tuple[float, float, float, float]] = []
     has_boundary = False
     for i, w in enumerate(v):
@@ -62,9 +70,10 @@ def _walls(ctx: Ctx, v: Any, size: tuple[float, float]) -> tuple:
                 raise ctx.fail(key, f"expected 'boundary' or [x1, y1, x2, y2], got {show(w)}")
             if has_boundary:
                 raise ctx.fail(key, "'boundary' is listed twice")
+            if boundary:
+                raise ctx.fail(key, "map_server.boundary (true by default) makes the world's edges walls already; list 'boundary' once")
             has_boundary = True
-            # Counter-clockwise around the world: bottom, right, top, left.
-            segments += [(-hw, -hh, hw, -hh), (hw, -hh, hw, hh), (hw, hh, -hw, hh), (-hw, hh, -hw, -hh)]
+            segments += _boundary(size)
             continue
         seg = check_vector(ctx, w, key, 4)
         if seg[0] == seg[2] and seg[1] == seg[3]:
@@ -256,7 +265,53 @@ def random_movers(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_
     return mc
 
 
-_TOP_KEYS = ("name", "size", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles", "moving_circles", "moving_boxes")
+_TOP_KEYS = ("name", "size", "map_server", "walls", "polygons", "circles", "boxes", "occupancy", "random_boxes", "random_circles", "moving_circles",
+             "moving_boxes")
+MAP_SERVER_KEYS = ("unknown", "crop", "boundary")  # map_server's options, besides its `yaml`
+
+
+def _options(ctx: Ctx, key: str, opts: dict) -> tuple[str, bool, bool]:
+    """``(unknown, crop, boundary)`` of the map_server options ``opts`` (keys :data:`MAP_SERVER_KEYS`), with
+    their defaults; errors name ``key`` of ``ctx``'s file."""
+    unknown = opts.get("unknown", "occupied")
+    if unknown not in ms.UNKNOWN_AS:
+        raise ctx.fail(f"{key}.unknown", f"expected one of {', '.join(ms.UNKNOWN_AS)}, got {show(unknown)}")
+    return unknown, check_bool(ctx, opts.get("crop", True), f"{key}.crop"), check_bool(ctx, opts.get("boundary", True), f"{key}.boundary")
+
+
+def _map_server(ctx: Ctx, grid: ms.Grid, unknown: str, crop: bool) -> ms.Layout:
+    """The world of a map_server ``grid`` (:func:`.map_server.layout`) within the loader's limits; errors
+    name ``ctx``'s file (the map_server YAML) and its ``image``."""
+    lay = ms.layout(ctx, "image", grid, unknown, crop)
+    if max(lay.size) > MAX_SIZE:
+        raise ctx.fail("image", f"{grid.image}: {lay.size[0]:g} x {lay.size[1]:g} m; at most {MAX_SIZE:g} m per side "
+                       "(float32 positions lose centimetres beyond that)")
+    if len(lay.boxes) > MAX_FIXED:
+        raise ctx.fail("image", f"{grid.image}: the occupied pixels make {len(lay.boxes):,} boxes; a map holds at most {MAX_FIXED:,} "
+                       "(clean the image's noise)")
+    return lay
+
+
+def _embedded(ctx: Ctx, v: Any, base_dir: str | os.PathLike | None) -> tuple[ms.Layout, bool]:
+    """The torchnav map key ``map_server: {yaml, unknown, crop, boundary}``: the map_server file's world."""
+    v = check_mapping(ctx, v, "map_server", ("yaml",), MAP_SERVER_KEYS)
+    unknown, crop, boundary = _options(ctx, "map_server", v)
+    path = v["yaml"]
+    if not isinstance(path, str) or not path:
+        raise ctx.fail("map_server.yaml", f"expected the path of a map_server YAML file, got {show(path)}")
+    if base_dir is not None and not os.path.isabs(path):
+        path = os.path.join(base_dir, path)
+    if not path.endswith((".yaml", ".yml")):
+        raise ctx.fail("map_server.yaml", f"{path}: expected a .yaml or .yml file")
+    try:
+        text, source, _, folder = read_named(path, None, "map_server YAML", MapError)
+    except MapError as e:
+        raise ctx.fail("map_server.yaml", str(e)) from None
+    inner = Ctx(f"{ctx.source}: map_server.yaml: {source}", MapError)  # its errors name both files
+    data = load_yaml(text, inner.source, MapError)
+    if not ms.is_map_server(data):
+        raise inner.fail("", "not a map_server map (it needs an `image` key and no `size`)")
+    return _map_server(inner, ms.read_grid(inner, data, folder), unknown, crop), boundary
 
 
 def parse_map(
@@ -265,20 +320,34 @@ def parse_map(
     """Validate an already-parsed map (the dict a YAML file loads to) into a :class:`MapSpec`.
 
     ``source`` is only used in error messages and :attr:`MapSpec.source`. ``base_dir``
-    resolves a relative ``occupancy.image`` path (``load_map`` passes the file's folder;
-    None: the current directory). Segments are the ``walls`` followed by the ``polygons``
-    edges; boxes are the ``boxes`` followed by the ``occupancy`` boxes.
+    resolves a relative ``occupancy.image`` or ``map_server.yaml`` path (``load_map`` passes
+    the file's folder; None: the current directory). Segments are the world's edges of a
+    ``map_server`` with ``boundary``, the ``walls``, then the ``polygons`` edges; boxes are
+    the ``boxes``, the ``occupancy`` boxes, then the ``map_server`` image's. A map_server
+    document (``image`` and no ``size``) is read as ``map_server: {yaml: <it>}`` with the defaults.
     """
     ctx = Ctx(source, MapError)
     if data is None:
         raise ctx.fail("", "the map file is empty; it needs at least `size: [w, h]`")
+    if ms.is_map_server(data):
+        unknown, crop, boundary = _options(ctx, "", {})  # the defaults: a map_server file has no torchnav options
+        lay = _map_server(ctx, ms.read_grid(ctx, data, base_dir), unknown, crop)
+        return MapSpec(name=default_name, source=source, size=lay.size, segments=_boundary(lay.size) if boundary else (),
+                       boxes=tuple(tuple(b) for b in lay.boxes.tolist()), frame=lay.frame)
     d = check_mapping(ctx, data, "", (), _TOP_KEYS)
-    if "size" not in d:
-        raise ctx.fail("size", "required key is missing")
     name = d.get("name", default_name)
     if not isinstance(name, str) or not name:
         raise ctx.fail("name", f"expected a non-empty string, got {show(name)}")
-    size = check_vector(ctx, d["size"], "size", 2, "pos")
+    lay, boundary = None, False
+    if "map_server" in d:
+        if "size" in d:
+            raise ctx.fail("size", "not with map_server: the world's size is that of the map_server image (cropped to its known area by default)")
+        lay, boundary = _embedded(ctx, d["map_server"], base_dir)
+        size = lay.size
+    elif "size" not in d:
+        raise ctx.fail("size", "required key is missing (or map_server, whose image gives the size)")
+    else:
+        size = check_vector(ctx, d["size"], "size", 2, "pos")
     if max(size) > MAX_SIZE:
         raise ctx.fail("size", f"at most {MAX_SIZE:g} m per side (float32 positions lose centimetres beyond that), got {show(d['size'])}")
     for k in ("walls", "polygons", "circles", "boxes"):
@@ -295,14 +364,17 @@ def parse_map(
         name=name,
         source=source,
         size=size,
-        segments=(_walls(ctx, d["walls"], size) if "walls" in d else ())
+        segments=(_boundary(size) if boundary else ())
+        + (_walls(ctx, d["walls"], size, boundary) if "walls" in d else ())
         + (_polygons(ctx, d["polygons"], size) if "polygons" in d else ()),
         circles=circles,
-        boxes=boxes + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ()),
+        boxes=boxes + (_occupancy(ctx, d["occupancy"], size, base_dir) if "occupancy" in d else ())
+        + (tuple(tuple(b) for b in lay.boxes.tolist()) if lay is not None else ()),
         styles=ObstacleStyles(circles=circle_styles, boxes=box_styles),
         random_boxes=_random_boxes(ctx, d["random_boxes"], size) if "random_boxes" in d else None,
         random_circles=_random_circles(ctx, d["random_circles"], size) if "random_circles" in d else None,
         movers=_movers(ctx, d, size),
+        frame=lay.frame if lay is not None else ms.IDENTITY,
     )
 
 

@@ -8,6 +8,7 @@ into disjoint rectangles whose union is exactly the occupied pixels. The pixel-t
 from __future__ import annotations
 
 import os
+from typing import Any, Callable
 
 import numpy as np
 
@@ -19,12 +20,10 @@ class ImageError(ValueError):
 MAX_PIXELS = 4096 * 4096  # an occupancy or track image larger than this is refused before decoding
 
 
-def read_mask(path: str | os.PathLike, threshold: float = 0.5, invert: bool = False) -> np.ndarray:
-    """``(H, W)`` bool mask of a PNG: grey level (in [0, 1]) above ``threshold``, or below it with ``invert``.
-
-    Colour images are converted to grey first (ITU-R 601 luma); an alpha channel is ignored.
-    Raises :class:`ImageError` when the file is missing or not an image.
-    """
+def read_image(path: str | os.PathLike, convert: Callable[[Any], np.ndarray]) -> np.ndarray:
+    """``convert(image)`` of the Pillow image at ``path``, once its size is known to be at most
+    :data:`MAX_PIXELS`. Raises :class:`ImageError` naming the file when it is missing, too big or
+    not an image (also for an error ``convert`` raises while decoding)."""
     # Pillow comes with matplotlib, a torchnav dependency; imported here so that importing
     # torchnav.maps does not pay for it.
     from PIL import Image, UnidentifiedImageError
@@ -33,13 +32,22 @@ def read_mask(path: str | os.PathLike, threshold: float = 0.5, invert: bool = Fa
         with Image.open(path) as im:  # reads the header only: the size is known before any pixel is decoded
             if im.width * im.height > MAX_PIXELS:
                 raise ImageError(f"{path}: {im.width} x {im.height} pixels is more than the {MAX_PIXELS:,} allowed; downscale the image")
-            grey = np.asarray(im.convert("L"), dtype=np.float64) / 255.0
+            return convert(im)
     except Image.DecompressionBombError as e:  # Pillow's own, larger, limit refuses it inside open()
         raise ImageError(f"{path}: more than the {MAX_PIXELS:,} pixels allowed ({e}); downscale the image") from None
     except FileNotFoundError:
         raise ImageError(f"{path}: image file not found") from None
     except (OSError, UnidentifiedImageError) as e:
         raise ImageError(f"{path}: cannot read image: {e}") from None
+
+
+def read_mask(path: str | os.PathLike, threshold: float = 0.5, invert: bool = False) -> np.ndarray:
+    """``(H, W)`` bool mask of a PNG: grey level (in [0, 1]) above ``threshold``, or below it with ``invert``.
+
+    Colour images are converted to grey first (ITU-R 601 luma); an alpha channel is ignored.
+    Raises :class:`ImageError` when the file is missing or not an image.
+    """
+    grey = read_image(path, lambda im: np.asarray(im.convert("L"), dtype=np.float64) / 255.0)
     return (grey < threshold) if invert else (grey > threshold)
 
 

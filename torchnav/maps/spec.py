@@ -16,6 +16,8 @@ from torchnav.sim.camera import ObstacleStyles
 from torchnav.sim.state import World, make_world, pad_world
 from torchnav.sim.static_map import StaticMap, build_static_map
 
+from .map_server import IDENTITY, from_map_frame, to_map_frame
+
 
 class MapError(ValueError):
     """A map file could not be found, parsed or validated. The message names the file and key."""
@@ -79,7 +81,8 @@ class MapSpec:
     tabled in docs/maps.md, "Loading a map". ``movers``: the moving discs (``moving_circles``) or
     boxes (``moving_boxes``) the task places on reset, or None. ``styles``: the camera heights and colours
     of the fixed circles and boxes that declare ``height`` or ``color`` (slot ``i`` of a kind is its
-    ``i``-th fixed obstacle)."""
+    ``i``-th fixed obstacle). ``frame``: the pose ``(x m, y m, yaw rad)`` of the world's origin in the ROS
+    ``map`` frame of a map_server map (docs/maps.md, "ROS map_server maps"); the identity for other maps."""
 
     name: str
     source: str
@@ -91,6 +94,7 @@ class MapSpec:
     random_circles: RandomCircles | None = None
     movers: RandomMovers | None = None
     styles: ObstacleStyles = ObstacleStyles()
+    frame: tuple[float, float, float] = IDENTITY
 
     @property
     def n_fixed_boxes(self) -> int:
@@ -143,6 +147,15 @@ class MapSpec:
         (``torchnav.sim.static_map``; ``reach=0`` indexes for clearance only)."""
         t = lambda rows, width: torch.tensor(rows, dtype=torch.float64).reshape(-1, width)  # noqa: E731
         return build_static_map(self.bounds, t(self.segments, 4), t(self.circles, 3), t(self.boxes, 5), reach=reach, device=device, dtype=dtype)
+
+    def to_map_frame(self, points: Any) -> Any:
+        """Points ``(..., 2)`` ``[x, y]`` m or poses ``(..., 3)`` ``[x, y, yaw rad]`` of this world in the
+        ROS ``map`` frame (:func:`.map_server.to_map_frame`; a tensor stays a tensor)."""
+        return to_map_frame(self.frame, points)
+
+    def from_map_frame(self, points: Any) -> Any:
+        """Points or poses of the ROS ``map`` frame (an RViz goal) in this world: the inverse of :meth:`to_map_frame`."""
+        return from_map_frame(self.frame, points)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain python types (lists, floats, None) for logging and config dumps."""
