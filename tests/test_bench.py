@@ -153,3 +153,19 @@ def test_multi_robot_bench_runs():
     for r in rows:
         assert _positive(r["env_steps_per_s"]) and r["agent_steps_per_s"] == pytest.approx(r["robots"] * r["env_steps_per_s"], rel=1e-3)
     assert rows[0]["per_agent_vs_first"] == 1.0 and "agent-steps/s" in out.stderr
+
+
+@pytest.mark.slow  # about 15 s: a tool's end-to-end run, outside the default suite's budget
+def test_big_map_quick_json(tmp_path):
+    cmd = [sys.executable, str(ROOT / "bench" / "big_map.py"), "--quick", "--json", "--threads", "1"]
+    out = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert out.returncode == 0, out.stderr[-2000:]
+    recs = [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+    cells = {(r["map"], r["mode"]) for r in recs if r.get("bench") == "big_map"}
+    assert cells == {(m, k) for m in ("arena", "big_warehouse") for k in ("build", "raw-sim", "env-step")}
+    big = next(r for r in recs if r.get("bench") == "big_map" and r["map"] == "big_warehouse" and r["mode"] == "build")
+    assert big["fixed_obstacles"] > 2000 and big["shared_map_bytes"] > 0 and big["per_env_world_bytes"] == 0
+    assert all(r["env_steps_per_s"] > 0 for r in recs if r.get("mode") in ("raw-sim", "env-step"))
+    # --write-map writes the map_server map that loads as it is
+    written = subprocess.run([sys.executable, str(ROOT / "bench" / "big_map.py"), "--write-map", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert written.returncode == 0 and (tmp_path / "big_warehouse.pgm").exists()
