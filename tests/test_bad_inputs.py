@@ -169,6 +169,142 @@ def test_gym_and_sb3_adapters_name_every_bad_action(vector, single, message):
         sb3.step(vector)
 
 
+DISCRETE_BAD = [  # for an 8-env batch over the 7 default discrete actions: (action, what the message must contain)
+    (torch.zeros(8, 7), "must be one-hot over the 7 entries"),
+    (torch.ones(8, 7, dtype=torch.int64), "must be one-hot"),
+    (torch.eye(7)[torch.zeros(8, dtype=torch.long)] * 0.5, "must be one-hot"),
+    (-torch.eye(7)[torch.zeros(8, dtype=torch.long)], "must be one-hot"),
+    (torch.eye(7)[torch.zeros(8, dtype=torch.long)].to(torch.complex64), "must be a real tensor, got torch.complex64"),
+    (torch.full((8, 7), float("nan")), "NaN or inf in envs"),
+    (torch.zeros(8, 2), r"action has shape \(8, 2\), expected \(8, 7\)"),
+    (torch.zeros(8, 7, device="meta"), "action is on device meta"),
+]
+
+
+@pytest.mark.parametrize("kind", ["nav", "line"])
+@pytest.mark.parametrize("action,message", DISCRETE_BAD, ids=[str(i) for i in range(len(DISCRETE_BAD))])
+def test_discrete_envs_refuse_what_is_not_one_hot(kind, action, message):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_line_env, make_nav_env
+
+    env = (make_nav_env("arena", 8, action={"mode": "discrete"}) if kind == "nav" else make_line_env("oval", 8, action={"mode": "discrete"}))
+    env.reset()
+    with pytest.raises(ValueError, match=message):
+        env.step(TensorDict({"action": action}, batch_size=[8]))
+    for dtype in (torch.float32, torch.float16, torch.int64, torch.uint8, torch.bool):  # a one-hot of any real dtype is an action
+        env.step(TensorDict({"action": torch.nn.functional.one_hot(torch.arange(8) % 7, 7).to(dtype)}, batch_size=[8]))
+
+
+@pytest.mark.parametrize("kind", ["nav", "line"])
+def test_advance_checks_the_action_layout(kind):
+    from torchnav.envs import make_line_env, make_nav_env
+
+    env = make_nav_env("arena", 8) if kind == "nav" else make_line_env("oval", 8)
+    env.reset()
+    for action, message in [(torch.zeros(4, 2), r"action has shape \(4, 2\), expected \(8, 2\)"), (torch.zeros(8, 2, dtype=torch.int64), "floating-point"),
+                            (torch.zeros(8, 2, device="meta"), "device meta")]:
+        with pytest.raises(ValueError, match=message):
+            env.advance(action)
+    env.advance(torch.zeros(8, 2))
+
+
+MULTI_BAD = [  # for 8 envs of 3 robots, continuous: (action, what the message must contain)
+    (torch.zeros(8, 2, 2), r"\('agents', 'action'\) has shape \(8, 2, 2\), expected \(8, 3, 2\)"),
+    (torch.zeros(8, 3, 3), r"has shape \(8, 3, 3\)"),
+    (torch.zeros(8, 3, 2, dtype=torch.int64), "floating-point tensor, got torch.int64"),
+    (torch.zeros(8, 3, 2, dtype=torch.bool), "floating-point tensor, got torch.bool"),
+    (torch.zeros(8, 3, 2, dtype=torch.complex64), "floating-point tensor, got torch.complex64"),
+    (torch.zeros(8, 3, 2, device="meta"), "is on device meta, expected the env's device cpu"),
+    (torch.full((8, 3, 2), float("nan")), "NaN or inf in envs"),
+]
+
+
+@pytest.mark.parametrize("action,message", MULTI_BAD, ids=[str(i) for i in range(len(MULTI_BAD))])
+def test_multi_robot_env_names_every_bad_action(action, message):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_multi_nav_env
+
+    env = make_multi_nav_env("arena", 8, 3)
+    env.reset()
+    with pytest.raises(ValueError, match=message):
+        env.step(TensorDict({"agents": TensorDict({"action": action}, batch_size=action.shape[:2])}, batch_size=[8]))
+
+
+def test_multi_robot_env_names_a_missing_action_a_batch_and_a_discrete_one():
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_multi_nav_env
+
+    env = make_multi_nav_env("arena", 8, 3)
+    with pytest.raises(ValueError, match=r"needs an \('agents', 'action'\) tensor of shape \(8, 3, 2\), got NoneType"):
+        env.step(env.reset().set("action", torch.zeros(8, 2)))  # the single-robot key
+    with pytest.raises(ValueError, match=r"batch size \(4,\), expected \(8,\)"):
+        env.step(TensorDict({"agents": TensorDict({"action": torch.zeros(4, 3, 2)}, [4, 3])}, [4]))
+    env = make_multi_nav_env("arena", 8, 3, action={"mode": "discrete"})
+    env.reset()
+    with pytest.raises(ValueError, match="must be one-hot over the 7 entries of action.discrete_set \\(one 1 per robot"):
+        env.step(TensorDict({"agents": TensorDict({"action": torch.ones(8, 3, 7)}, [8, 3])}, [8]))
+    env.step(TensorDict({"agents": TensorDict({"action": torch.nn.functional.one_hot(torch.arange(24).reshape(8, 3) % 7, 7)}, [8, 3])}, [8]))
+
+
+@pytest.mark.parametrize("kind", ["line", "discrete"])
+def test_gym_line_and_discrete_adapters_name_bad_actions(kind):
+    from torchnav.gym import line_env, line_vector_env, navigation_env, navigation_vector_env
+
+    if kind == "line":
+        vec, one = line_vector_env(num_envs=8), line_env()
+        cases = [(np.zeros((4, 2)), np.zeros((1, 2)), "must have shape"), (np.zeros((8, 2), dtype=bool), np.zeros(2, dtype=bool), "real numbers"),
+                 (torch.zeros(8, 2, device="meta"), torch.zeros(2, device="meta"), "meta device"), (np.full((8, 2), -np.inf), np.full(2, np.inf), "NaN or inf")]
+    else:
+        vec, one = navigation_vector_env(num_envs=8, action={"mode": "discrete"}), navigation_env(action={"mode": "discrete"})
+        cases = [(np.full(8, 7), 7, r"integers in \[0, 7\)"), (np.full(8, -1), -1, r"integers in \[0, 7\)"), (np.zeros(8) + 0.5, 0.5, "must be integers"),
+                 (np.eye(7)[[0] * 8], np.eye(7)[0], "must be integers"), (np.zeros((8, 1), int), np.zeros(1, int), "must have shape"),
+                 (np.zeros(8, bool), True, "must be integers")]
+    vec.reset(seed=0)
+    one.reset(seed=0)
+    for vector, single, message in cases:
+        with pytest.raises(ValueError, match=message):
+            vec.step(vector)
+        with pytest.raises(ValueError, match=message):
+            one.step(single)
+    vec.step(np.zeros(8, int) if kind == "discrete" else np.zeros((8, 2)))  # still steps after the refusals
+
+
+PZ_BAD = [  # (mode, one robot's action, what the message must contain)
+    ("continuous", np.zeros(3), r"robot_0: actions must have shape \(2,\)"),
+    ("continuous", np.zeros((1, 2)), r"must have shape \(2,\) \(two values in \[-1, 1\] per robot\)"),
+    ("continuous", np.zeros(2, dtype=bool), "real numbers"),
+    ("continuous", np.zeros(2, dtype=complex), "real numbers"),
+    ("continuous", "ab", "real numbers"),
+    ("continuous", None, "real numbers"),
+    ("continuous", [0, [0]], "must be an array"),
+    ("continuous", torch.zeros(2, device="meta"), "meta device"),
+    ("continuous", np.full(2, np.nan), "NaN or inf"),
+    ("discrete", 99, r"integers in \[0, 7\)"),
+    ("discrete", -1, r"integers in \[0, 7\)"),
+    ("discrete", 0.5, "must be integers"),
+    ("discrete", np.zeros(2, int), r"must have shape \(\)"),
+    ("discrete", None, "must be integers"),
+    ("discrete", True, "must be integers"),
+]
+
+
+@pytest.mark.parametrize("mode,action,message", PZ_BAD, ids=[f"{m}-{i}" for i, (m, _, _) in enumerate(PZ_BAD)])
+def test_pettingzoo_adapter_names_every_bad_action(mode, action, message):
+    pytest.importorskip("pettingzoo")
+    from torchnav.pettingzoo import parallel_env
+
+    env = parallel_env(n_robots=3, action={"mode": mode})
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step({a: action for a in env.agents})
+    with pytest.raises(ValueError, match="must be a dict of agent name to action, got list"):
+        env.step([action])
+    env.step({a: (1 if mode == "discrete" else np.zeros(2)) for a in env.agents})  # still steps after the refusals
+
+
 # --------------------------------------------------------------------------- checkpoints
 
 
