@@ -424,6 +424,86 @@ def test_run_directories_are_never_shared(tmp_path):
         builders.make_run_dir(cfg, "td3_lidar")
 
 
+CLAIMER = """
+import sys
+sys.path.insert(0, sys.argv[1])
+from pathlib import Path
+import builders
+builders.claim_run_dir(Path(sys.argv[2]), fresh=True)
+print("claimed", flush=True)
+sys.stdin.readline()  # hold the run directory until the parent says so
+"""
+
+
+def test_two_runs_never_write_into_one_run_directory(tmp_path):
+    import subprocess
+    from types import SimpleNamespace
+
+    import builders
+
+    run = tmp_path / "shared"
+    child = subprocess.Popen([sys.executable, "-c", CLAIMER, str(ROOT / "recipes"), str(run)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "claimed"
+        cfg = SimpleNamespace(seed=0, logger=SimpleNamespace(root=str(tmp_path), run_dir=str(run)))
+        # the other run has written nothing yet (no config.yaml): its claim alone keeps this one out
+        with pytest.raises(builders.RunDirError, match="already holds a run"):
+            builders.make_run_dir(cfg, "td3_lidar")
+        with pytest.raises(builders.RunDirError, match=r"in use by another process \(its .torchnav_run is locked\)"):
+            builders.make_run_dir(cfg, "td3_lidar", resuming=True)
+    finally:
+        child.communicate("\n", timeout=30)
+    assert builders.make_run_dir(cfg, "td3_lidar", resuming=True) == run  # the lock went with the process
+    # the same race in one process: both passed the "holds a run" check before either wrote
+    other = tmp_path / "raced"
+    builders.claim_run_dir(other, fresh=True)
+    with pytest.raises(builders.RunDirError, match="another run is starting in it"):
+        builders.claim_run_dir(other, fresh=True)
+
+
+def test_an_unwritable_run_directory_is_named_before_training(tmp_path, monkeypatch):
+    import builders
+
+    td3 = importlib.import_module("td3_lidar")
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("a regular file")
+    with pytest.raises(builders.RunDirError, match=r"file\.txt/run: cannot create it \(NotADirectoryError"):
+        td3.main(TINY_TD3 + ["train.total_frames=128", f"logger.run_dir={blocker / 'run'}"])
+    with pytest.raises(builders.RunDirError, match=r"logger.root=.*file\.txt/runs: cannot create it"):
+        td3.main(TINY_TD3 + ["train.total_frames=128", f"logger.root={blocker / 'runs'}"])
+
+    def read_only(path, exclusive):  # what os.open says in a read-only directory (root ignores chmod, so it is simulated)
+        raise OSError(30, "Read-only file system", str(path))
+
+    monkeypatch.setattr(builders, "_open_claim", read_only)
+    run = tmp_path / "ro"
+    with pytest.raises(builders.RunDirError, match=r"ro is not writable \(OSError: \[Errno 30\] Read-only file system"):
+        td3.main(TINY_TD3 + ["train.total_frames=128", f"logger.run_dir={run}"])
+    assert not (run / "config.yaml").exists() and not (run / "logs").exists(), "the run went on after the probe failed"
+
+
+def test_sweep_workers_never_share_a_run_directory(tmp_path, monkeypatch):
+    import builders
+    import sweep
+
+    with pytest.raises(ConfigError, match=r"seed=0 \{\} and seed=0 \{\} both run in .*seed0; every seed and grid value must be distinct"):
+        sweep.main(["run", "td3_lidar", "--seeds", "0", "0", "--out", str(tmp_path / "s")])
+    with pytest.raises(ConfigError, match="both run in"):
+        sweep.main(["run", "td3_lidar", "--seeds", "0", "--grid", "train.lr_actor=0.001,0.001", "--out", str(tmp_path / "s")])
+    assert not (tmp_path / "s").exists()
+    out = tmp_path / "race"
+    out.mkdir()
+    sweep.claim_sweep_dir(out, {"recipe": "td3_lidar"})
+    monkeypatch.setattr(sweep.Path, "iterdir", lambda self: iter(()))  # the second sweep looked while the folder was still empty
+    with pytest.raises(ConfigError, match="another sweep started in this folder at the same time"):
+        sweep.claim_sweep_dir(out, {"recipe": "td3_lidar"})
+    monkeypatch.undo()
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("")
+    with pytest.raises(builders.RunDirError, match="sweep folder .*file.txt/sweep is not writable"):
+        sweep.main(["run", "td3_lidar", "--seeds", "0", "--out", str(blocker / "sweep")])
+
+
 # --------------------------------------------------------------------------- maps and tracks
 
 def _alias_bomb(top: str) -> str:
