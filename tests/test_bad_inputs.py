@@ -704,3 +704,77 @@ def test_a_write_that_fails_half_way_leaves_the_previous_file_loadable(tmp_path,
     monkeypatch.undo()
     assert int(load_checked(ckpt)["step"]) == 1 and summary.read_text() == '{"frames": 1}'
     assert sorted(os.listdir(tmp_path)) == ["checkpoint.pt", "summary.json"]  # no half-written temporary file is left
+
+
+@pytest.mark.parametrize("fault", ["killed during the rename", "disk full"])
+def test_a_recording_that_fails_half_way_leaves_the_previous_one_loadable(tmp_path, monkeypatch, fault):
+    import warnings
+
+    from torchnav.envs import make_nav_env
+    from torchnav.record import EpisodeRecorder, RecordingWarning, mcap_writer, read_recording, record_rollout
+
+    env = make_nav_env("arena", num_envs=2, max_steps=20, seed=0)
+    path = tmp_path / "episodes.mcap"
+    with EpisodeRecorder(path, env, envs=(0,), episodes=1) as rec:
+        record_rollout(env, None, 40, rec)
+    before = read_recording(path)
+    assert before.complete and len(before.episodes()) == 1
+
+    def fail(*args, **kwargs):
+        raise OSError(28 if fault == "disk full" else 4, fault)
+
+    monkeypatch.setattr(mcap_writer.os, "replace" if fault.startswith("killed") else "fsync", fail)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        rec = EpisodeRecorder(path, env, envs=(1,), episodes=2)
+        record_rollout(env, None, 60, rec)
+        rec.close()
+    monkeypatch.undo()
+    assert sum(issubclass(x.category, RecordingWarning) for x in w) == 1 and fault in rec.error
+    assert f"{path} is as it was before this recording" in str(w[0].message)
+    after = read_recording(path)  # the previous recording, whole
+    assert after.complete and after.info["envs"] == before.info["envs"] and len(after.episodes()) == 1
+    assert read_recording(rec.partial_path).episodes(), "the failed recording's flushed episodes are kept beside it"
+
+
+# --------------------------------------------------------------------------- the soak (bench/soak.py)
+
+def _soak():
+    spec = importlib.util.spec_from_file_location("soak", ROOT / "bench" / "soak.py")
+    soak = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(soak)
+    return soak
+
+
+def test_soak_counters_see_what_they_count():
+    """The soak's checks are not vacuous: a pose outside its walls, a NaN and an undocumented inf are counted."""
+    from torchnav.sim import make_world
+
+    soak = _soak()
+    world = make_world(2, segments=[[-5, -5, 5, -5], [5, -5, 5, 5], [5, 5, -5, 5], [-5, 5, -5, -5]])
+    box = soak.world_box(world, 0.2)
+    assert box[0].tolist() == pytest.approx([-5.2, -5.2, 5.2, 5.2])
+    pose = torch.tensor([[0.0, 0.0, 0.0], [5.3, 0.0, 0.0]])
+    assert soak.outside(pose, box).tolist() == [False, True]
+    assert soak.outside(torch.full((2, 3), float("nan")), box).all()
+    c = soak.Counts()
+    c.state({"pose": torch.tensor([float("nan"), 1.0]), "goal_path": torch.tensor([float("inf")]), "sim": {"vel": torch.tensor([float("inf")])}})
+    assert (c.nan, c.inf_unexpected) == (1, 1)
+
+
+@pytest.mark.slow  # a minute or two: every cell of the soak, briefly
+def test_soak_quick_finds_nothing(tmp_path):
+    import json
+    import subprocess
+
+    out = subprocess.run([sys.executable, str(ROOT / "bench" / "soak.py"), "--quick", "--json", "--threads", "1"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    summary = json.loads(out.stdout.strip().splitlines()[-1])
+    soak = _soak()
+    assert [c["cell"] for c in summary["cells"]] == [name for name, _, _ in soak.cells()]
+    assert all(c["env_steps"] > 0 for c in summary["cells"])
+    for key in ("nan", "inf_unexpected", "out_of_bounds", "tunnelled", "silent", "errors"):
+        assert summary[key] == 0, (key, [(c["cell"], c[key]) for c in summary["cells"] if c[key]])
+    assert summary["bad_actions_refused"] >= 2 * len(summary["cells"]), "the NaN and inf probes must run in every cell"
+    assert len(summary["rss_mb_per_round"]) == 2 and summary["env_steps"] == sum(c["env_steps"] for c in summary["cells"])
