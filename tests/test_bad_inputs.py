@@ -553,7 +553,8 @@ def _refused_quickly(load, error: type, path: Path, text: str, message: str) -> 
 
 
 @pytest.mark.parametrize("text", ["size: [5, 5]\nboxes:\n  - {center: [0, 0], size: [5, 5]}",  # a box as large as the world
-                                  "size: [0.3, 0.3]"])  # smaller than the robot
+                                  "size: [0.3, 0.3]",  # smaller than the robot
+                                  "size: [10000, 0.5]\nwalls: boundary"])  # thinner than the room grid's spacing: a grid of no cell
 def test_map_without_room_for_the_robot_is_refused(tmp_path, text):
     from torchnav.envs import make_nav_env
 
@@ -592,6 +593,9 @@ BAD_TRACKS = [  # (track file, what the message must contain): each refused befo
     ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e5, 0], [1.0e5, 1.0e5]], closed: true, corner_radius: 2.0e4}",
      "lines[0].corner_radius: the fillets"),
     ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e4, 0], [1.0e4, 1.0e4]], closed: true, smooth: true}", "lines[0].points: the spline"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e-7, 0], [1.0e-7, 1.0e-7]], closed: true}",  # a lap smaller than one spacing
+     "spacing: a closed line 3.41421e-07 m long at spacing 0.02 m would have 1 segment; a lap needs at least 3"),
+    ("width: 0.02\nspacing: 0.7\nlines:\n  - {points: [[0, 0], [0.4, 0], [0.4, 0.4]], closed: true}", "would have 2 segments; a lap needs at least 3"),
 ]
 
 
@@ -610,6 +614,18 @@ def test_track_at_the_point_limit_builds(tmp_path):
     path = tmp_path / "t.yaml"
     path.write_text(f"width: 0.02\nlines:\n  - {{points: [[0, 0], [{side}, 0], [{side}, {side}], [0, {side}]], closed: true}}")
     assert len(load_track(path).lap) <= MAX_CURVE_POINTS + 1
+
+
+def test_image_track_of_a_tiny_scale_is_refused(tmp_path):
+    from PIL import Image, ImageDraw
+
+    from torchnav.tracks import load_track
+
+    im = Image.new("L", (100, 100), 0)
+    ImageDraw.Draw(im).ellipse((10, 10, 90, 90), outline=255, width=3)
+    im.save(tmp_path / "ring.png")
+    # 1e-9 m per pixel: a lap of a quarter of a micrometre, which resampling once made into a single point
+    _refused_quickly(load_track, TrackError, tmp_path / "t.yaml", "image: ring.png\nresolution: 1.0e-9\n", "spacing: the traced lap: a closed line")
 
 
 @pytest.mark.parametrize("kind", ["map", "track"])
