@@ -712,14 +712,25 @@ def test_a_write_that_fails_half_way_leaves_the_previous_file_loadable(tmp_path,
     def fail(*args, **kwargs):
         raise OSError(28 if fault == "disk full" else 4, fault)
 
+    actor, policy = _saved_policy(tmp_path)
+    from torchnav.policy import load_policy, save_policy
+
     monkeypatch.setattr(checkpoint.os, "fsync" if fault == "disk full" else "replace", fail)
     with pytest.raises(OSError, match=fault):
         save_checked(ckpt, {"format": "test", "step": torch.tensor(2)})
+    with torch.no_grad():
+        other = type(actor)(6, 2, [16, 16], "relu", "tanh")
+        for p in other.parameters():
+            p.fill_(0.5)
+    with pytest.raises(OSError, match=fault):
+        save_policy(policy, other, task="nav", task_config={}, algorithm="td3")
     with pytest.raises(OSError, match=fault):
         write_atomic(summary, '{"frames": 2}')
     monkeypatch.undo()
     assert int(load_checked(ckpt)["step"]) == 1 and summary.read_text() == '{"frames": 1}'
-    assert sorted(os.listdir(tmp_path)) == ["checkpoint.pt", "summary.json"]  # no half-written temporary file is left
+    got = load_policy(policy).actor.state_dict()
+    assert all(torch.equal(got[k], v) for k, v in actor.state_dict().items()), "actor.pt is not the previous policy"
+    assert sorted(os.listdir(tmp_path)) == ["actor.pt", "checkpoint.pt", "summary.json"]  # no half-written temporary file is left
 
 
 @pytest.mark.parametrize("fault", ["killed during the rename", "disk full"])
