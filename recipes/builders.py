@@ -133,32 +133,89 @@ def task_protocol(cfg: Recipe) -> TaskProtocol:
     return LineProtocol(cfg.task, laps=cfg.eval.laps)
 
 
+class RunDirError(ConfigError):
+    """A run directory that cannot be used: not writable, or another run's (named before training starts)."""
+
+
+CLAIM = ".torchnav_run"  # in every run directory: created exclusively by its run, locked while a process writes there
+_CLAIMS: dict[Path, int] = {}  # run directory -> the open, locked claim file of this process
+
+
+def _open_claim(path: Path, exclusive: bool) -> int:
+    """``os.open`` of a claim file for writing (``O_EXCL`` when ``exclusive``): the probe that the directory is writable."""
+    return os.open(path, os.O_WRONLY | os.O_CREAT | (os.O_EXCL if exclusive else 0), 0o644)
+
+
+def claim_run_dir(run: Path, fresh: bool) -> None:
+    """Make ``run`` this process's run directory, or raise :class:`RunDirError` naming why not.
+
+    A fresh run creates ``run/.torchnav_run`` exclusively (``O_EXCL``: of two runs given the same
+    directory at once, exactly one gets it); a resume reopens it. Either way the file is then
+    locked (``flock``) for as long as this process lives, or until it claims that directory again,
+    so a resume cannot write beside a run still in progress, and a run killed by any signal leaves
+    no stale lock. Opening the file for writing is also the probe for a read-only directory, a full
+    disk, or a path under a regular file, all named here rather than at the first checkpoint."""
+    try:
+        run.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise RunDirError(f"run directory {run}: cannot create it ({type(e).__name__}: {e})") from None
+    key = run.resolve()
+    if key in _CLAIMS:  # this process's earlier run in that directory has ended: one recipe runs at a time
+        os.close(_CLAIMS.pop(key))
+    try:
+        fd = _open_claim(run / CLAIM, exclusive=fresh)
+    except FileExistsError:
+        raise RunDirError(f"logger.run_dir={run} already holds a run (or another run is starting in it); "
+                          f"continue it with --resume={run} or choose another directory") from None
+    except OSError as e:
+        raise RunDirError(f"run directory {run} is not writable ({type(e).__name__}: {e}); choose another logger.run_dir or logger.root") from None
+    try:
+        import fcntl  # POSIX; elsewhere the exclusive creation alone keeps fresh runs apart
+
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except ImportError:
+        pass
+    except OSError:
+        os.close(fd)
+        raise RunDirError(f"run directory {run} is in use by another process (its {CLAIM} is locked); "
+                          "wait for that run to end, or choose another directory") from None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"pid {os.getpid()} on {os.uname().nodename}\n".encode())
+    _CLAIMS[key] = fd
+
+
 def make_run_dir(cfg: Recipe, name: str, resuming: bool = False) -> Path:
-    """The run directory: ``logger.run_dir``, or a new ``<logger.root>/<name>_<time>_seed<seed>``.
+    """The run directory: ``logger.run_dir``, or a new ``<logger.root>/<name>_<time>_seed<seed>``,
+    claimed for this process (:func:`claim_run_dir`).
 
     A new run's directory is created exclusively: an automatic name that exists already
     (two runs started in the same second) gets a ``_2``, ``_3``, ... suffix, and an explicit
-    ``logger.run_dir`` that already holds a run is refused (resume it, or pick another).
+    ``logger.run_dir`` that already holds a run, or that another run claimed first, is refused
+    (resume it, or pick another). A directory that cannot be written raises :class:`RunDirError`.
     """
     if cfg.logger.run_dir:
         run = Path(cfg.logger.run_dir)
-        if resuming:
-            return run
-        if run.is_dir() and any((run / f).exists() for f in ("checkpoint.pt", "config.yaml", "actor.pt")):
-            raise ConfigError(f"logger.run_dir={run} already holds a run; continue it with --resume={run} or choose another directory")
-        run.mkdir(parents=True, exist_ok=True)
+        if not resuming and run.is_dir() and any((run / f).exists() for f in ("checkpoint.pt", "config.yaml", "actor.pt")):
+            raise RunDirError(f"logger.run_dir={run} already holds a run; continue it with --resume={run} or choose another directory")
+        claim_run_dir(run, fresh=not resuming)
         return run
     stamp = _dt.datetime.now().strftime("%Y%m%d_%H%M%S")
     base = Path(cfg.logger.root) / f"{name}_{stamp}_seed{cfg.seed}"
-    base.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        base.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise RunDirError(f"logger.root={cfg.logger.root}: cannot create it ({type(e).__name__}: {e})") from None
     for i in range(1, 1000):
         run = base if i == 1 else base.with_name(f"{base.name}_{i}")
         try:
             run.mkdir()
-            return run
         except FileExistsError:
             continue
-    raise ConfigError(f"could not create a new run directory next to {base}")
+        except OSError as e:
+            raise RunDirError(f"logger.root={cfg.logger.root} is not writable ({type(e).__name__}: {e})") from None
+        claim_run_dir(run, fresh=True)
+        return run
+    raise RunDirError(f"could not create a new run directory next to {base}")
 
 
 def make_logger(cfg: Recipe, run: Path):

@@ -23,6 +23,7 @@ import argparse
 import itertools
 import json
 import math
+import os
 import statistics
 import sys
 import time
@@ -58,17 +59,18 @@ def launch(a: argparse.Namespace) -> Path:
     from submitit.helpers import CommandFunction
 
     out = Path(a.out or Path("runs") / f"sweep_{a.recipe}_{time.strftime('%Y%m%d_%H%M%S')}")
-    jobs = []
+    jobs, runs = [], {}
     for s in settings(a.grid):
         for seed in a.seeds:
             run = out / setting_name(s) / f"seed{seed}"
+            if run in runs:  # a repeated seed or grid value: two workers would share one run directory
+                raise B.ConfigError(f"--seeds {' '.join(map(str, a.seeds))} --grid {' '.join(a.grid)}: {runs[run]} and seed={seed} {s} both "
+                                    f"run in {run}; every seed and grid value must be distinct")
+            runs[run] = f"seed={seed} {s}"
             args = [f"seed={seed}", *(f"{k}={v}" for k, v in s.items()), *a.set, f"logger.run_dir={run}", "logger.progress=false"]
             B.load_config(a.recipe, args)  # a bad value stops the sweep here, before any job starts
             jobs.append(args)
-    if out.exists() and any(out.iterdir()):
-        raise B.ConfigError(f"{out} is not empty; sweeps never write into an earlier sweep's folder")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "sweep_spec.json").write_text(json.dumps({"recipe": a.recipe, "seeds": a.seeds, "grid": a.grid, "set": a.set}, indent=2))
+    claim_sweep_dir(out, {"recipe": a.recipe, "seeds": a.seeds, "grid": a.grid, "set": a.set})
     ex = submitit.AutoExecutor(folder=out / "submitit", cluster=a.cluster)
     ex.update_parameters(timeout_min=a.timeout_min, slurm_array_parallelism=a.workers, cpus_per_task=a.cpus_per_task,
                          **({"slurm_partition": a.slurm_partition} if a.slurm_partition else {}))
@@ -89,6 +91,24 @@ def launch(a: argparse.Namespace) -> Path:
     if failed:
         raise SystemExit(f"sweep: {len(failed)} of {len(jobs)} runs failed: " + "; ".join(" ".join(f) for f in failed))
     return out
+
+
+def claim_sweep_dir(out: Path, spec: dict[str, Any]) -> None:
+    """Make ``out`` this sweep's folder, writing ``sweep_spec.json`` into it: refused (``ConfigError``)
+    when it holds anything already, and the spec is created exclusively (``O_EXCL``), so of two sweeps
+    launched on one folder at once exactly one goes on. An unwritable folder raises ``RunDirError``
+    before any job starts. Each job's run directory is then claimed by its recipe (``builders.claim_run_dir``)."""
+    if out.exists() and any(out.iterdir()):
+        raise B.ConfigError(f"{out} is not empty; sweeps never write into an earlier sweep's folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd = os.open(out / "sweep_spec.json", os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        raise B.ConfigError(f"{out}: another sweep started in this folder at the same time") from None
+    except OSError as e:
+        raise B.RunDirError(f"sweep folder {out} is not writable ({type(e).__name__}: {e}); choose another --out") from None
+    with os.fdopen(fd, "w") as f:
+        f.write(json.dumps(spec, indent=2))
 
 
 def _wait(submitted: list[Any], jobs: list[list[str]]) -> list[list[str]]:

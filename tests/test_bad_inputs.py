@@ -169,6 +169,142 @@ def test_gym_and_sb3_adapters_name_every_bad_action(vector, single, message):
         sb3.step(vector)
 
 
+DISCRETE_BAD = [  # for an 8-env batch over the 7 default discrete actions: (action, what the message must contain)
+    (torch.zeros(8, 7), "must be one-hot over the 7 entries"),
+    (torch.ones(8, 7, dtype=torch.int64), "must be one-hot"),
+    (torch.eye(7)[torch.zeros(8, dtype=torch.long)] * 0.5, "must be one-hot"),
+    (-torch.eye(7)[torch.zeros(8, dtype=torch.long)], "must be one-hot"),
+    (torch.eye(7)[torch.zeros(8, dtype=torch.long)].to(torch.complex64), "must be a real tensor, got torch.complex64"),
+    (torch.full((8, 7), float("nan")), "NaN or inf in envs"),
+    (torch.zeros(8, 2), r"action has shape \(8, 2\), expected \(8, 7\)"),
+    (torch.zeros(8, 7, device="meta"), "action is on device meta"),
+]
+
+
+@pytest.mark.parametrize("kind", ["nav", "line"])
+@pytest.mark.parametrize("action,message", DISCRETE_BAD, ids=[str(i) for i in range(len(DISCRETE_BAD))])
+def test_discrete_envs_refuse_what_is_not_one_hot(kind, action, message):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_line_env, make_nav_env
+
+    env = (make_nav_env("arena", 8, action={"mode": "discrete"}) if kind == "nav" else make_line_env("oval", 8, action={"mode": "discrete"}))
+    env.reset()
+    with pytest.raises(ValueError, match=message):
+        env.step(TensorDict({"action": action}, batch_size=[8]))
+    for dtype in (torch.float32, torch.float16, torch.int64, torch.uint8, torch.bool):  # a one-hot of any real dtype is an action
+        env.step(TensorDict({"action": torch.nn.functional.one_hot(torch.arange(8) % 7, 7).to(dtype)}, batch_size=[8]))
+
+
+@pytest.mark.parametrize("kind", ["nav", "line"])
+def test_advance_checks_the_action_layout(kind):
+    from torchnav.envs import make_line_env, make_nav_env
+
+    env = make_nav_env("arena", 8) if kind == "nav" else make_line_env("oval", 8)
+    env.reset()
+    for action, message in [(torch.zeros(4, 2), r"action has shape \(4, 2\), expected \(8, 2\)"), (torch.zeros(8, 2, dtype=torch.int64), "floating-point"),
+                            (torch.zeros(8, 2, device="meta"), "device meta")]:
+        with pytest.raises(ValueError, match=message):
+            env.advance(action)
+    env.advance(torch.zeros(8, 2))
+
+
+MULTI_BAD = [  # for 8 envs of 3 robots, continuous: (action, what the message must contain)
+    (torch.zeros(8, 2, 2), r"\('agents', 'action'\) has shape \(8, 2, 2\), expected \(8, 3, 2\)"),
+    (torch.zeros(8, 3, 3), r"has shape \(8, 3, 3\)"),
+    (torch.zeros(8, 3, 2, dtype=torch.int64), "floating-point tensor, got torch.int64"),
+    (torch.zeros(8, 3, 2, dtype=torch.bool), "floating-point tensor, got torch.bool"),
+    (torch.zeros(8, 3, 2, dtype=torch.complex64), "floating-point tensor, got torch.complex64"),
+    (torch.zeros(8, 3, 2, device="meta"), "is on device meta, expected the env's device cpu"),
+    (torch.full((8, 3, 2), float("nan")), "NaN or inf in envs"),
+]
+
+
+@pytest.mark.parametrize("action,message", MULTI_BAD, ids=[str(i) for i in range(len(MULTI_BAD))])
+def test_multi_robot_env_names_every_bad_action(action, message):
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_multi_nav_env
+
+    env = make_multi_nav_env("arena", 8, 3)
+    env.reset()
+    with pytest.raises(ValueError, match=message):
+        env.step(TensorDict({"agents": TensorDict({"action": action}, batch_size=action.shape[:2])}, batch_size=[8]))
+
+
+def test_multi_robot_env_names_a_missing_action_a_batch_and_a_discrete_one():
+    from tensordict import TensorDict
+
+    from torchnav.envs import make_multi_nav_env
+
+    env = make_multi_nav_env("arena", 8, 3)
+    with pytest.raises(ValueError, match=r"needs an \('agents', 'action'\) tensor of shape \(8, 3, 2\), got NoneType"):
+        env.step(env.reset().set("action", torch.zeros(8, 2)))  # the single-robot key
+    with pytest.raises(ValueError, match=r"batch size \(4,\), expected \(8,\)"):
+        env.step(TensorDict({"agents": TensorDict({"action": torch.zeros(4, 3, 2)}, [4, 3])}, [4]))
+    env = make_multi_nav_env("arena", 8, 3, action={"mode": "discrete"})
+    env.reset()
+    with pytest.raises(ValueError, match="must be one-hot over the 7 entries of action.discrete_set \\(one 1 per robot"):
+        env.step(TensorDict({"agents": TensorDict({"action": torch.ones(8, 3, 7)}, [8, 3])}, [8]))
+    env.step(TensorDict({"agents": TensorDict({"action": torch.nn.functional.one_hot(torch.arange(24).reshape(8, 3) % 7, 7)}, [8, 3])}, [8]))
+
+
+@pytest.mark.parametrize("kind", ["line", "discrete"])
+def test_gym_line_and_discrete_adapters_name_bad_actions(kind):
+    from torchnav.gym import line_env, line_vector_env, navigation_env, navigation_vector_env
+
+    if kind == "line":
+        vec, one = line_vector_env(num_envs=8), line_env()
+        cases = [(np.zeros((4, 2)), np.zeros((1, 2)), "must have shape"), (np.zeros((8, 2), dtype=bool), np.zeros(2, dtype=bool), "real numbers"),
+                 (torch.zeros(8, 2, device="meta"), torch.zeros(2, device="meta"), "meta device"), (np.full((8, 2), -np.inf), np.full(2, np.inf), "NaN or inf")]
+    else:
+        vec, one = navigation_vector_env(num_envs=8, action={"mode": "discrete"}), navigation_env(action={"mode": "discrete"})
+        cases = [(np.full(8, 7), 7, r"integers in \[0, 7\)"), (np.full(8, -1), -1, r"integers in \[0, 7\)"), (np.zeros(8) + 0.5, 0.5, "must be integers"),
+                 (np.eye(7)[[0] * 8], np.eye(7)[0], "must be integers"), (np.zeros((8, 1), int), np.zeros(1, int), "must have shape"),
+                 (np.zeros(8, bool), True, "must be integers")]
+    vec.reset(seed=0)
+    one.reset(seed=0)
+    for vector, single, message in cases:
+        with pytest.raises(ValueError, match=message):
+            vec.step(vector)
+        with pytest.raises(ValueError, match=message):
+            one.step(single)
+    vec.step(np.zeros(8, int) if kind == "discrete" else np.zeros((8, 2)))  # still steps after the refusals
+
+
+PZ_BAD = [  # (mode, one robot's action, what the message must contain)
+    ("continuous", np.zeros(3), r"robot_0: actions must have shape \(2,\)"),
+    ("continuous", np.zeros((1, 2)), r"must have shape \(2,\) \(two values in \[-1, 1\] per robot\)"),
+    ("continuous", np.zeros(2, dtype=bool), "real numbers"),
+    ("continuous", np.zeros(2, dtype=complex), "real numbers"),
+    ("continuous", "ab", "real numbers"),
+    ("continuous", None, "real numbers"),
+    ("continuous", [0, [0]], "must be an array"),
+    ("continuous", torch.zeros(2, device="meta"), "meta device"),
+    ("continuous", np.full(2, np.nan), "NaN or inf"),
+    ("discrete", 99, r"integers in \[0, 7\)"),
+    ("discrete", -1, r"integers in \[0, 7\)"),
+    ("discrete", 0.5, "must be integers"),
+    ("discrete", np.zeros(2, int), r"must have shape \(\)"),
+    ("discrete", None, "must be integers"),
+    ("discrete", True, "must be integers"),
+]
+
+
+@pytest.mark.parametrize("mode,action,message", PZ_BAD, ids=[f"{m}-{i}" for i, (m, _, _) in enumerate(PZ_BAD)])
+def test_pettingzoo_adapter_names_every_bad_action(mode, action, message):
+    pytest.importorskip("pettingzoo")
+    from torchnav.pettingzoo import parallel_env
+
+    env = parallel_env(n_robots=3, action={"mode": mode})
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step({a: action for a in env.agents})
+    with pytest.raises(ValueError, match="must be a dict of agent name to action, got list"):
+        env.step([action])
+    env.step({a: (1 if mode == "discrete" else np.zeros(2)) for a in env.agents})  # still steps after the refusals
+
+
 # --------------------------------------------------------------------------- checkpoints
 
 
@@ -288,6 +424,86 @@ def test_run_directories_are_never_shared(tmp_path):
         builders.make_run_dir(cfg, "td3_lidar")
 
 
+CLAIMER = """
+import sys
+sys.path.insert(0, sys.argv[1])
+from pathlib import Path
+import builders
+builders.claim_run_dir(Path(sys.argv[2]), fresh=True)
+print("claimed", flush=True)
+sys.stdin.readline()  # hold the run directory until the parent says so
+"""
+
+
+def test_two_runs_never_write_into_one_run_directory(tmp_path):
+    import subprocess
+    from types import SimpleNamespace
+
+    import builders
+
+    run = tmp_path / "shared"
+    child = subprocess.Popen([sys.executable, "-c", CLAIMER, str(ROOT / "recipes"), str(run)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "claimed"
+        cfg = SimpleNamespace(seed=0, logger=SimpleNamespace(root=str(tmp_path), run_dir=str(run)))
+        # the other run has written nothing yet (no config.yaml): its claim alone keeps this one out
+        with pytest.raises(builders.RunDirError, match="already holds a run"):
+            builders.make_run_dir(cfg, "td3_lidar")
+        with pytest.raises(builders.RunDirError, match=r"in use by another process \(its .torchnav_run is locked\)"):
+            builders.make_run_dir(cfg, "td3_lidar", resuming=True)
+    finally:
+        child.communicate("\n", timeout=30)
+    assert builders.make_run_dir(cfg, "td3_lidar", resuming=True) == run  # the lock went with the process
+    # the same race in one process: both passed the "holds a run" check before either wrote
+    other = tmp_path / "raced"
+    builders.claim_run_dir(other, fresh=True)
+    with pytest.raises(builders.RunDirError, match="another run is starting in it"):
+        builders.claim_run_dir(other, fresh=True)
+
+
+def test_an_unwritable_run_directory_is_named_before_training(tmp_path, monkeypatch):
+    import builders
+
+    td3 = importlib.import_module("td3_lidar")
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("a regular file")
+    with pytest.raises(builders.RunDirError, match=r"file\.txt/run: cannot create it \(NotADirectoryError"):
+        td3.main(TINY_TD3 + ["train.total_frames=128", f"logger.run_dir={blocker / 'run'}"])
+    with pytest.raises(builders.RunDirError, match=r"logger.root=.*file\.txt/runs: cannot create it"):
+        td3.main(TINY_TD3 + ["train.total_frames=128", f"logger.root={blocker / 'runs'}"])
+
+    def read_only(path, exclusive):  # what os.open says in a read-only directory (root ignores chmod, so it is simulated)
+        raise OSError(30, "Read-only file system", str(path))
+
+    monkeypatch.setattr(builders, "_open_claim", read_only)
+    run = tmp_path / "ro"
+    with pytest.raises(builders.RunDirError, match=r"ro is not writable \(OSError: \[Errno 30\] Read-only file system"):
+        td3.main(TINY_TD3 + ["train.total_frames=128", f"logger.run_dir={run}"])
+    assert not (run / "config.yaml").exists() and not (run / "logs").exists(), "the run went on after the probe failed"
+
+
+def test_sweep_workers_never_share_a_run_directory(tmp_path, monkeypatch):
+    import builders
+    import sweep
+
+    with pytest.raises(ConfigError, match=r"seed=0 \{\} and seed=0 \{\} both run in .*seed0; every seed and grid value must be distinct"):
+        sweep.main(["run", "td3_lidar", "--seeds", "0", "0", "--out", str(tmp_path / "s")])
+    with pytest.raises(ConfigError, match="both run in"):
+        sweep.main(["run", "td3_lidar", "--seeds", "0", "--grid", "train.lr_actor=0.001,0.001", "--out", str(tmp_path / "s")])
+    assert not (tmp_path / "s").exists()
+    out = tmp_path / "race"
+    out.mkdir()
+    sweep.claim_sweep_dir(out, {"recipe": "td3_lidar"})
+    monkeypatch.setattr(sweep.Path, "iterdir", lambda self: iter(()))  # the second sweep looked while the folder was still empty
+    with pytest.raises(ConfigError, match="another sweep started in this folder at the same time"):
+        sweep.claim_sweep_dir(out, {"recipe": "td3_lidar"})
+    monkeypatch.undo()
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("")
+    with pytest.raises(builders.RunDirError, match="sweep folder .*file.txt/sweep is not writable"):
+        sweep.main(["run", "td3_lidar", "--seeds", "0", "--out", str(blocker / "sweep")])
+
+
 # --------------------------------------------------------------------------- maps and tracks
 
 def _alias_bomb(top: str) -> str:
@@ -337,7 +553,8 @@ def _refused_quickly(load, error: type, path: Path, text: str, message: str) -> 
 
 
 @pytest.mark.parametrize("text", ["size: [5, 5]\nboxes:\n  - {center: [0, 0], size: [5, 5]}",  # a box as large as the world
-                                  "size: [0.3, 0.3]"])  # smaller than the robot
+                                  "size: [0.3, 0.3]",  # smaller than the robot
+                                  "size: [10000, 0.5]\nwalls: boundary"])  # thinner than the room grid's spacing: a grid of no cell
 def test_map_without_room_for_the_robot_is_refused(tmp_path, text):
     from torchnav.envs import make_nav_env
 
@@ -376,6 +593,9 @@ BAD_TRACKS = [  # (track file, what the message must contain): each refused befo
     ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e5, 0], [1.0e5, 1.0e5]], closed: true, corner_radius: 2.0e4}",
      "lines[0].corner_radius: the fillets"),
     ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e4, 0], [1.0e4, 1.0e4]], closed: true, smooth: true}", "lines[0].points: the spline"),
+    ("width: 0.02\nlines:\n  - {points: [[0, 0], [1.0e-7, 0], [1.0e-7, 1.0e-7]], closed: true}",  # a lap smaller than one spacing
+     "spacing: a closed line 3.41421e-07 m long at spacing 0.02 m would have 1 segment; a lap needs at least 3"),
+    ("width: 0.02\nspacing: 0.7\nlines:\n  - {points: [[0, 0], [0.4, 0], [0.4, 0.4]], closed: true}", "would have 2 segments; a lap needs at least 3"),
 ]
 
 
@@ -394,6 +614,18 @@ def test_track_at_the_point_limit_builds(tmp_path):
     path = tmp_path / "t.yaml"
     path.write_text(f"width: 0.02\nlines:\n  - {{points: [[0, 0], [{side}, 0], [{side}, {side}], [0, {side}]], closed: true}}")
     assert len(load_track(path).lap) <= MAX_CURVE_POINTS + 1
+
+
+def test_image_track_of_a_tiny_scale_is_refused(tmp_path):
+    from PIL import Image, ImageDraw
+
+    from torchnav.tracks import load_track
+
+    im = Image.new("L", (100, 100), 0)
+    ImageDraw.Draw(im).ellipse((10, 10, 90, 90), outline=255, width=3)
+    im.save(tmp_path / "ring.png")
+    # 1e-9 m per pixel: a lap of a quarter of a micrometre, which resampling once made into a single point
+    _refused_quickly(load_track, TrackError, tmp_path / "t.yaml", "image: ring.png\nresolution: 1.0e-9\n", "spacing: the traced lap: a closed line")
 
 
 @pytest.mark.parametrize("kind", ["map", "track"])
@@ -480,11 +712,96 @@ def test_a_write_that_fails_half_way_leaves_the_previous_file_loadable(tmp_path,
     def fail(*args, **kwargs):
         raise OSError(28 if fault == "disk full" else 4, fault)
 
+    actor, policy = _saved_policy(tmp_path)
+    from torchnav.policy import load_policy, save_policy
+
     monkeypatch.setattr(checkpoint.os, "fsync" if fault == "disk full" else "replace", fail)
     with pytest.raises(OSError, match=fault):
         save_checked(ckpt, {"format": "test", "step": torch.tensor(2)})
+    with torch.no_grad():
+        other = type(actor)(6, 2, [16, 16], "relu", "tanh")
+        for p in other.parameters():
+            p.fill_(0.5)
+    with pytest.raises(OSError, match=fault):
+        save_policy(policy, other, task="nav", task_config={}, algorithm="td3")
     with pytest.raises(OSError, match=fault):
         write_atomic(summary, '{"frames": 2}')
     monkeypatch.undo()
     assert int(load_checked(ckpt)["step"]) == 1 and summary.read_text() == '{"frames": 1}'
-    assert sorted(os.listdir(tmp_path)) == ["checkpoint.pt", "summary.json"]  # no half-written temporary file is left
+    got = load_policy(policy).actor.state_dict()
+    assert all(torch.equal(got[k], v) for k, v in actor.state_dict().items()), "actor.pt is not the previous policy"
+    assert sorted(os.listdir(tmp_path)) == ["actor.pt", "checkpoint.pt", "summary.json"]  # no half-written temporary file is left
+
+
+@pytest.mark.parametrize("fault", ["killed during the rename", "disk full"])
+def test_a_recording_that_fails_half_way_leaves_the_previous_one_loadable(tmp_path, monkeypatch, fault):
+    import warnings
+
+    from torchnav.envs import make_nav_env
+    from torchnav.record import EpisodeRecorder, RecordingWarning, mcap_writer, read_recording, record_rollout
+
+    env = make_nav_env("arena", num_envs=2, max_steps=20, seed=0)
+    path = tmp_path / "episodes.mcap"
+    with EpisodeRecorder(path, env, envs=(0,), episodes=1) as rec:
+        record_rollout(env, None, 40, rec)
+    before = read_recording(path)
+    assert before.complete and len(before.episodes()) == 1
+
+    def fail(*args, **kwargs):
+        raise OSError(28 if fault == "disk full" else 4, fault)
+
+    monkeypatch.setattr(mcap_writer.os, "replace" if fault.startswith("killed") else "fsync", fail)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        rec = EpisodeRecorder(path, env, envs=(1,), episodes=2)
+        record_rollout(env, None, 60, rec)
+        rec.close()
+    monkeypatch.undo()
+    assert sum(issubclass(x.category, RecordingWarning) for x in w) == 1 and fault in rec.error
+    assert f"{path} is as it was before this recording" in str(w[0].message)
+    after = read_recording(path)  # the previous recording, whole
+    assert after.complete and after.info["envs"] == before.info["envs"] and len(after.episodes()) == 1
+    assert read_recording(rec.partial_path).episodes(), "the failed recording's flushed episodes are kept beside it"
+
+
+# --------------------------------------------------------------------------- the soak (bench/soak.py)
+
+def _soak():
+    spec = importlib.util.spec_from_file_location("soak", ROOT / "bench" / "soak.py")
+    soak = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(soak)
+    return soak
+
+
+def test_soak_counters_see_what_they_count():
+    """The soak's checks are not vacuous: a pose outside its walls, a NaN and an undocumented inf are counted."""
+    from torchnav.sim import make_world
+
+    soak = _soak()
+    world = make_world(2, segments=[[-5, -5, 5, -5], [5, -5, 5, 5], [5, 5, -5, 5], [-5, 5, -5, -5]])
+    box = soak.world_box(world, 0.2)
+    assert box[0].tolist() == pytest.approx([-5.2, -5.2, 5.2, 5.2])
+    pose = torch.tensor([[0.0, 0.0, 0.0], [5.3, 0.0, 0.0]])
+    assert soak.outside(pose, box).tolist() == [False, True]
+    assert soak.outside(torch.full((2, 3), float("nan")), box).all()
+    c = soak.Counts()
+    c.state({"pose": torch.tensor([float("nan"), 1.0]), "goal_path": torch.tensor([float("inf")]), "sim": {"vel": torch.tensor([float("inf")])}})
+    assert (c.nan, c.inf_unexpected) == (1, 1)
+
+
+@pytest.mark.slow  # a minute or two: every cell of the soak, briefly
+def test_soak_quick_finds_nothing(tmp_path):
+    import json
+    import subprocess
+
+    out = subprocess.run([sys.executable, str(ROOT / "bench" / "soak.py"), "--quick", "--json", "--threads", "1"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    summary = json.loads(out.stdout.strip().splitlines()[-1])
+    soak = _soak()
+    assert [c["cell"] for c in summary["cells"]] == [name for name, _, _ in soak.cells()]
+    assert all(c["env_steps"] > 0 for c in summary["cells"])
+    for key in ("nan", "inf_unexpected", "out_of_bounds", "tunnelled", "silent", "errors"):
+        assert summary[key] == 0, (key, [(c["cell"], c[key]) for c in summary["cells"] if c[key]])
+    assert summary["bad_actions_refused"] >= 2 * len(summary["cells"]), "the NaN and inf probes must run in every cell"
+    assert len(summary["rss_mb_per_round"]) == 2 and summary["env_steps"] == sum(c["env_steps"] for c in summary["cells"])

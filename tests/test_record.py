@@ -191,6 +191,7 @@ CHILD = textwrap.dedent("""
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
 def test_killed_writer_leaves_readable_episodes(tmp_path, sig):
     path = tmp_path / "killed.mcap"
+    path.write_bytes(b"the previous recording")  # replaced only by a complete recording
     proc = subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 60
@@ -201,6 +202,11 @@ def test_killed_writer_leaves_readable_episodes(tmp_path, sig):
         proc.wait(timeout=30)
     finally:
         proc.kill()
+    if sig == signal.SIGKILL:  # no close(): the steps so far are in the partial file, the previous one is untouched
+        assert path.read_bytes() == b"the previous recording"
+        path = tmp_path / "killed.partial.mcap"
+    else:
+        assert not (tmp_path / "killed.partial.mcap").exists()
     rec = read_recording(path)
     assert rec.complete == (sig == signal.SIGTERM)  # SIGTERM unwinds through close()
     finished = [e for e in rec.episodes() if e.outcome != "incomplete"]

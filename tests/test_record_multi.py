@@ -121,7 +121,7 @@ def test_a_file_cut_short_reads_back_with_its_robots(tmp_path):
     path, cut = tmp_path / "e.mcap", tmp_path / "cut.mcap"
     rec = EpisodeRecorder(path, env, envs=(0,), episodes=1)
     record_rollout(env, None, 5, rec)  # flushes; the episodes (max_steps 12) are still running
-    shutil.copy(path, cut)  # what a killed writer leaves: no summary
+    shutil.copy(rec.partial_path, cut)  # what a killed writer leaves (the recording so far, beside the path): no summary
     rec.close()
     r = read_recording(cut)
     assert not r.complete

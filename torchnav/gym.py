@@ -91,32 +91,38 @@ def _advance(env: NavEnv | LineEnv, td: TensorDict | None, action: torch.Tensor)
     return env.step(td.clone(False).set("action", action))["next"]
 
 
-def _action_tensor(env: NavEnv | LineEnv, space: spaces.Space, actions: Any, single: bool = False) -> torch.Tensor:
-    """Gymnasium actions for ``env.num_envs`` envs (indices into a ``Discrete`` ``space``, or ``(B, 2)``
-    values; with ``single`` one index or ``(2,)`` values) as the TorchRL env's action; a ValueError
-    names a wrong type, shape, dtype or value before anything is converted."""
-    b, discrete = env.num_envs, isinstance(space, spaces.Discrete)
-    want = (() if discrete else (2,)) if single else ((b,) if discrete else (b, 2))
-    what = "one index" if discrete else "two values in [-1, 1]"
+def checked_actions(actions: Any, want: tuple[int, ...], n: int | None = None, per: str = "env") -> np.ndarray:
+    """``actions`` as a NumPy array of shape ``want``: real numbers (``n`` None), or indices in
+    ``[0, n)`` for a ``Discrete(n)`` space; a ValueError names a wrong type, shape, dtype or value
+    before anything is converted. Shared by the Gymnasium and PettingZoo adapters."""
+    discrete = n is not None
+    what = f"{'one index' if discrete else 'two values in [-1, 1]'} per {per}"
     if isinstance(actions, torch.Tensor):
         if actions.device.type == "meta":
-            raise ValueError(f"actions are on the meta device (no values); pass {what} per env as a NumPy array or CPU tensor")
+            raise ValueError(f"actions are on the meta device (no values); pass {what} as a NumPy array or CPU tensor")
         actions = actions.detach().cpu()
     try:
         a = np.asarray(actions)
     except (TypeError, ValueError) as e:  # ragged lists
-        raise ValueError(f"actions must be an array of shape {want} ({what} per env), got {type(actions).__name__} ({e})") from None
+        raise ValueError(f"actions must be an array of shape {want} ({what}), got {type(actions).__name__} ({e})") from None
     # Real numbers only: bool, complex, strings and objects have no meaning as commands.
     if a.dtype.kind not in ("i", "u") + (() if discrete else ("f",)):
-        raise ValueError(f"actions must be {'integers' if discrete else 'real numbers'} ({what} per env), got dtype {a.dtype}")
+        raise ValueError(f"actions must be {'integers' if discrete else 'real numbers'} ({what}), got dtype {a.dtype}")
     if a.shape != want:
-        raise ValueError(f"actions must have shape {want} ({what} per env), got {a.shape}")
-    t = torch.as_tensor(a, device=env.device)
+        raise ValueError(f"actions must have shape {want} ({what}), got {a.shape}")
+    if discrete and ((a < 0).any() or (a >= n).any()):
+        raise ValueError(f"discrete actions must be integers in [0, {n}), got {actions!r}")
+    return a
+
+
+def _action_tensor(env: NavEnv | LineEnv, space: spaces.Space, actions: Any, single: bool = False) -> torch.Tensor:
+    """Gymnasium actions for ``env.num_envs`` envs (indices into a ``Discrete`` ``space``, or ``(B, 2)``
+    values; with ``single`` one index or ``(2,)`` values) as the TorchRL env's action (:func:`checked_actions`)."""
+    b, discrete = env.num_envs, isinstance(space, spaces.Discrete)
+    want = (() if discrete else (2,)) if single else ((b,) if discrete else (b, 2))
+    t = torch.as_tensor(checked_actions(actions, want, space.n if discrete else None), device=env.device)
     if discrete:
-        n = space.n
-        if (t < 0).any() or (t >= n).any():
-            raise ValueError(f"discrete actions must be integers in [0, {n}), got {actions!r}")
-        return torch.nn.functional.one_hot(t.long().reshape(b), n).to(env.action_spec.dtype)
+        return torch.nn.functional.one_hot(t.long().reshape(b), space.n).to(env.action_spec.dtype)
     return t.to(torch.float32).reshape(b, 2)
 
 

@@ -20,6 +20,7 @@ import torch
 from tensordict import TensorDict
 
 from .envs import MultiNavEnv, make_multi_nav_env
+from .gym import checked_actions
 from .tasks import MultiNavConfig
 
 
@@ -69,7 +70,9 @@ class MultiNavParallelEnv(ParallelEnv):
     def step(self, actions: dict[str, Any]):
         if self._td is None:
             raise RuntimeError("MultiNavParallelEnv.step: call reset() first")
-        unknown = sorted(set(actions) - set(self.agents))
+        if not isinstance(actions, dict):
+            raise ValueError(f"MultiNavParallelEnv.step: actions must be a dict of agent name to action, got {type(actions).__name__}")
+        unknown = sorted(set(actions) - set(self.agents), key=str)
         if unknown:
             raise ValueError(f"MultiNavParallelEnv.step: actions for agents that are not live: {unknown} (live: {self.agents})")
         spec = self.env.full_action_spec["agents", "action"]
@@ -79,11 +82,15 @@ class MultiNavParallelEnv(ParallelEnv):
             act[0, :, 0] = 1  # a valid one-hot for the robots that do not act
         for a, u in actions.items():
             i = self.possible_agents.index(a)
+            try:
+                u = checked_actions(u, () if discrete else (2,), spec.shape[-1] if discrete else None, per="robot")
+            except ValueError as e:
+                raise ValueError(f"MultiNavParallelEnv.step: {a}: {e}") from None
             if discrete:
                 act[0, i] = 0
                 act[0, i, int(u)] = 1
             else:
-                act[0, i] = torch.as_tensor(np.asarray(u, dtype=np.float32), device=self.env.device)
+                act[0, i] = torch.as_tensor(u, dtype=torch.float32, device=self.env.device)
         self._td["agents", "action"] = act
         nxt = self.env.step(self._td)["next"]
         self._td = nxt

@@ -77,28 +77,45 @@ class BatchedEnv(EnvBase):
             raise ValueError(f"{type(self).__name__}: the input TensorDict has batch size {tuple(tensordict.batch_size)}, expected "
                              f"{tuple(self.batch_size)} (one row per env; an action is {tuple(self.action_spec.shape)})")
 
-    def _checked_action(self, tensordict) -> torch.Tensor:
-        """The ``"action"``: a tensor on the env's device of the action spec's shape, floating point
-        when continuous (else a ValueError naming what is allowed); with ``cfg.check_actions`` a NaN
-        or inf raises naming the envs (one host sync)."""
-        action = tensordict.get("action", None)
+    def _checked_action(self, tensordict, key: str | tuple[str, ...] = "action", spec: Any = None, per: str = "env") -> torch.Tensor:
+        """The action under ``key`` (of ``spec``, default the action spec): a tensor on the env's
+        device of the spec's shape, real, floating point when continuous (else a ValueError naming
+        what is allowed). With ``cfg.check_actions`` (one host sync) a NaN or inf, or in mode
+        ``discrete`` a row that is not one-hot (one 1, the rest 0), raises naming the envs."""
+        spec = self.action_spec if spec is None else spec
+        name = key if isinstance(key, str) else repr(key)
+        action = tensordict.get(key, None)
         if not isinstance(action, torch.Tensor):
-            raise ValueError(f"{type(self).__name__}.step: the input needs an \"action\" tensor of shape {tuple(self.action_spec.shape)}, "
+            shown = f'"{key}"' if isinstance(key, str) else repr(key)
+            raise ValueError(f"{type(self).__name__}.step: the input needs an {shown} tensor of shape {tuple(spec.shape)}, "
                              f"got {type(action).__name__}")
-        if action.device != self.device:
-            raise ValueError(f"{type(self).__name__}.step: action is on device {action.device}, expected the env's device {self.device}")
-        if action.shape != self.action_spec.shape:
-            raise ValueError(f"{type(self).__name__}.step: action has shape {tuple(action.shape)}, expected {tuple(self.action_spec.shape)} "
-                             f"({self.action_spec.shape[-1]} values per env for {self.num_envs} envs)")
-        if self.cfg.action.mode != "discrete" and not action.is_floating_point():
-            raise ValueError(f"{type(self).__name__}.step: a continuous action must be a floating-point tensor, got {action.dtype}")
-        if self.cfg.check_actions and not torch.isfinite(action).all():
-            bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
-            raise ValueError(
-                f"{type(self).__name__}.step: action contains NaN or inf in envs {bad[:10]}{'...' if len(bad) > 10 else ''}; "
-                "fix the policy, or pass check_actions=False to let the simulator treat them as a stop command"
-            )
+        self._check_action_layout(action, spec.shape, name, per)
+        if self.cfg.check_actions:
+            discrete = self.cfg.action.mode == "discrete"
+            # one reduction, one sync on the good path; the envs are named only on the error path
+            ok = (((action == 0) | (action == 1)).all(-1) & (action.sum(-1) == 1)) if discrete else torch.isfinite(action).all(-1)
+            if not bool(ok.all()):
+                bad = (~ok).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
+                envs = f"envs {bad[:10]}{'...' if len(bad) > 10 else ''}"
+                if not bool(torch.isfinite(action).all()):
+                    raise ValueError(f"{type(self).__name__}.step: action contains NaN or inf in {envs}; fix the policy, or pass "
+                                     "check_actions=False to let the simulator treat them as a stop command")
+                raise ValueError(f"{type(self).__name__}.step: a discrete action must be one-hot over the {spec.shape[-1]} entries of "
+                                 f"action.discrete_set (one 1 per {per}, the rest 0); not so in {envs}")
         return action
+
+    def _check_action_layout(self, action: torch.Tensor, shape: tuple[int, ...], name: str = "action", per: str = "env") -> None:
+        """Device, shape and dtype of an action, from its metadata only (no host sync)."""
+        where = type(self).__name__
+        if action.device != self.device:
+            raise ValueError(f"{where}.step: {name} is on device {action.device}, expected the env's device {self.device}")
+        if action.shape != shape:
+            raise ValueError(f"{where}.step: {name} has shape {tuple(action.shape)}, expected {tuple(shape)} "
+                             f"({shape[-1]} values per {per}{f', {shape[1]} robots,' if len(shape) == 3 else ' for'} {self.num_envs} envs)")
+        if self.cfg.action.mode != "discrete" and not action.is_floating_point():
+            raise ValueError(f"{where}.step: a continuous action must be a floating-point tensor, got {action.dtype}")
+        if action.is_complex():
+            raise ValueError(f"{where}.step: {name} must be a real tensor, got {action.dtype}")
 
     # -- TorchRL hooks: one reset and one step for every task ------------------------------
 
@@ -148,7 +165,8 @@ class BatchedEnv(EnvBase):
     def advance(self, action: torch.Tensor) -> tuple[Any, dict[str, torch.Tensor]]:
         """One step of the task on the env's current state, then new episodes where one ended.
 
-        What ``step`` does without TorchRL's specs, output TensorDict or action checks, and
+        What ``step`` does without TorchRL's specs, output TensorDict or the action's value checks
+        (NaN, one-hot: they would cost a host sync; device, shape and dtype are checked), and
         without ``torch.no_grad``: the new state keeps the autograd graph from ``action`` (and
         from earlier steps, until :meth:`detach_state`), so a loss on the task's outputs can be
         backpropagated through the simulator (recipes/apg_lidar.py). The curriculum advances
@@ -158,6 +176,7 @@ class BatchedEnv(EnvBase):
         Returns the state before the reset (the finished episodes' last state) and the task's
         ``out`` dict (``observation`` is also the one before the reset).
         """
+        self._check_action_layout(action, self.action_spec.shape)
         state, out = self.task.step(self._state, action, self._generator)
         self._state = state
         self._after_step(out)

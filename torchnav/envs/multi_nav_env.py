@@ -103,7 +103,7 @@ class MultiNavEnv(CurriculumPoolState, BatchedEnv):
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = self._checked_agent_action(tensordict)
+        action = self._checked_action(tensordict, ("agents", "action"), self.full_action_spec["agents", "action"], per="robot")
         before = self._state
         self._state, out = self.task.step(before, action, self._generator)
         self.curriculum = self.task.after_step(self.curriculum, before, out)
@@ -114,17 +114,6 @@ class MultiNavEnv(CurriculumPoolState, BatchedEnv):
                    ("agents", "reward"): out["reward"][..., None], ("agents", "done"): a_term | a_trunc, ("agents", "terminated"): a_term,
                    ("agents", "truncated"): a_trunc})
         return td
-
-    def _checked_agent_action(self, tensordict: TensorDictBase) -> torch.Tensor:
-        action = tensordict.get(("agents", "action"))
-        spec = self.full_action_spec["agents", "action"]
-        if action.shape != spec.shape:
-            raise ValueError(f"MultiNavEnv.step: ('agents', 'action') has shape {tuple(action.shape)}, expected {tuple(spec.shape)} "
-                             f"({spec.shape[-1]} values per robot, {self.n_robots} robots, {self.num_envs} envs)")
-        if self.cfg.check_actions and not torch.isfinite(action).all():
-            bad = (~torch.isfinite(action)).reshape(action.shape[0], -1).any(-1).nonzero().squeeze(-1).tolist()
-            raise ValueError(f"MultiNavEnv.step: action contains NaN or inf in envs {bad[:10]}; fix the policy, or pass check_actions=False")
-        return action
 
     def _agent_outputs(self, s: MultiNavState, terms: dict[str, torch.Tensor], flags: dict[str, torch.Tensor]) -> TensorDict:
         b, ab = self.batch_size, (*self.batch_size, self.task.n)

@@ -48,7 +48,8 @@ def obstacle_distance_arrays(xy: np.ndarray, segments=(), circles=(), boxes=()) 
     world = make_world(1, segments=segments, circles=circles, boxes=boxes, dtype=torch.float64)
     # points_clearance holds a (points, obstacles) table per kind: chunk the points to keep it small.
     step = max(1, (1 << 22) // max(1, world.segments.shape[1], world.circles.shape[1], world.boxes.shape[1]))
-    return torch.cat([points_clearance(pts[:, i:i + step], world)[0] for i in range(0, pts.shape[1], step)]).numpy()
+    chunks = [points_clearance(pts[:, i:i + step], world)[0] for i in range(0, pts.shape[1], step)]
+    return torch.cat(chunks).numpy() if chunks else np.zeros(0)  # no points: a grid with no cell (a world thinner than its sampling)
 
 
 def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

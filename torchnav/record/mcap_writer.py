@@ -86,7 +86,12 @@ class EpisodeRecorder:
     those envs, docs/foxglove.md "Several robots per env") to an MCAP file at ``path``.
 
     Args:
-        path: output file (parent directories are created). An existing file is replaced.
+        path: output file (parent directories are created). Steps are written to
+            ``partial_path`` (``<stem>.partial.mcap`` beside it) and renamed onto ``path`` when the
+            recording closes, so an existing file is replaced only by a complete one: a recording
+            killed or stopped by a write error leaves the previous file whole, and its own steps,
+            up to the last flush, readable in ``partial_path``. A ``path`` that exists and is not a
+            regular file (a FIFO, ``/dev/full``) is written in place.
         env: the ``NavEnv`` whose steps are recorded (config, lidar layout, reward terms, dt).
         envs: indices of the recorded envs in the batch.
         metadata: extra entries of the ``torchnav`` metadata record (seed, checkpoint, ...);
@@ -122,6 +127,8 @@ class EpisodeRecorder:
         if on_error not in ("warn", "raise"):
             raise ValueError(f"on_error must be 'warn' or 'raise', got {on_error!r}")
         self.path = Path(path)
+        special = self.path.exists() and not self.path.is_file()
+        self.partial_path = self.path if special else self.path.with_name(f"{self.path.stem}.partial{self.path.suffix or '.mcap'}")
         self.env = env
         self.envs = [int(e) for e in envs]
         if not self.envs or any(not 0 <= e < env.num_envs for e in self.envs):
@@ -186,7 +193,7 @@ class EpisodeRecorder:
         from mcap.writer import CompressionType, Writer
 
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file = open(self.path, "wb")
+        self._file = open(self.partial_path, "wb")
         self._writer = Writer(self._file, compression=CompressionType.ZSTD, chunk_size=1 << 20)
         self._writer.start(profile="", library=f"torchnav {__version__}")
         sid = {k: self._writer.register_schema(s["title"], "jsonschema", json.dumps(s).encode()) for k, s in self.schemas().items()}
@@ -242,8 +249,9 @@ class EpisodeRecorder:
                 self._file.close()
         except OSError:
             pass
+        kept = "" if self.partial_path == self.path else f"; {self.path} is as it was before this recording"
         msg = (f"torchnav.record: recording to {self.path} stopped ({self.error}); "
-               "the run goes on, and the file keeps the episodes flushed before the error")
+               f"the run goes on, and {self.partial_path} keeps the episodes flushed before the error{kept}")
         if self.on_error == "raise":
             raise e
         warnings.warn(msg, RecordingWarning, stacklevel=3)
@@ -310,7 +318,12 @@ class EpisodeRecorder:
 
     def _finish(self) -> None:
         self._writer.finish()
+        self._file.flush()
+        if self.partial_path != self.path:
+            os.fsync(self._file.fileno())  # the data is on disk before the rename makes it the recording
         self._file.close()
+        if self.partial_path != self.path:
+            os.replace(self.partial_path, self.path)
         self.enabled = False
 
     def __enter__(self) -> "EpisodeRecorder":

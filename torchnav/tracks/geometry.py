@@ -121,6 +121,9 @@ def resample(dense: np.ndarray, spacing: float, closed: bool) -> np.ndarray:
         raise CurveError("the line has zero length")
     _check_count(s[-1] / spacing, f"a line {s[-1]:.6g} m long at spacing {spacing:g} m")
     n = max(1, int(math.ceil(s[-1] / spacing - 1e-9)))
+    if closed and n < 3:  # two points of a closed line are one point twice: a lap of zero length
+        raise CurveError(f"a closed line {s[-1]:.6g} m long at spacing {spacing:g} m would have {n} segment{'s' * (n > 1)}; a lap needs "
+                         "at least 3 (lower the spacing, or check the track's scale: its points or the image's resolution)")
     q = np.linspace(0.0, s[-1], n + 1)
     out = np.stack((np.interp(q, s, pts[:, 0]), np.interp(q, s, pts[:, 1])), axis=1)
     if closed:
