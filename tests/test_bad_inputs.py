@@ -805,3 +805,28 @@ def test_soak_quick_finds_nothing(tmp_path):
         assert summary[key] == 0, (key, [(c["cell"], c[key]) for c in summary["cells"] if c[key]])
     assert summary["bad_actions_refused"] >= 2 * len(summary["cells"]), "the NaN and inf probes must run in every cell"
     assert len(summary["rss_mb_per_round"]) == 2 and summary["env_steps"] == sum(c["env_steps"] for c in summary["cells"])
+
+
+@pytest.mark.parametrize("overrides, key", [
+    ({"lidar": {"n_rays": 10**8}}, "lidar.n_rays"),
+    ({"lidar": {"n_rays": 10**8, "n_sectors": 10**8}}, "lidar.n_sectors"),
+    ({"observation": {"history": 10**8}}, "observation.history"),
+    ({"observation": {"visit_sectors": 8, "visit_memory": 10**9}}, "observation.visit_memory"),
+    ({"lidar": {"max_range": 1e300}}, "lidar.max_range"),
+    ({"camera": {"n_cols": 10**7}}, "camera.n_cols"),
+    ({"camera": {"max_range": 1e300}}, "camera.max_range"),
+])
+def test_sizes_past_memory_are_refused_up_front(overrides, key):
+    """Sizes whose tensors would not fit in memory are named before anything is allocated."""
+    from torchnav.envs import make_nav_env
+
+    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+        make_nav_env("arena", 4, **overrides)
+
+
+@pytest.mark.parametrize("n", [0, -3, 10**9, 2.5, True, "8"])
+def test_num_envs_out_of_range_is_named(n):
+    from torchnav.envs import NavEnv
+
+    with pytest.raises(ValueError, match="num_envs must be an integer"):
+        NavEnv(num_envs=n)

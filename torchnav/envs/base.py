@@ -24,6 +24,8 @@ def _leaves(d: dict[str, Any]):
             yield v
 
 
+MAX_ENVS = 1 << 24  # envs of one batch: more would not fit the per-env state in memory
+
 class BatchedEnv(EnvBase):
     """``batch_size=(num_envs,)`` env stepping a pure task with one ``torch.Generator`` seeded by ``seed``."""
 
@@ -32,6 +34,8 @@ class BatchedEnv(EnvBase):
     task_class: type = object
 
     def __init__(self, cfg: Any = None, num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or not 1 <= num_envs <= MAX_ENVS:
+            raise ValueError(f"num_envs must be an integer in [1, {MAX_ENVS:,}], got {num_envs!r}")
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
         self._generator = torch.Generator(device=self.device)
         self._generator.manual_seed(0 if seed is None else int(seed))

@@ -54,8 +54,11 @@ def is_number(v: Any) -> bool:
     return (is_int(v) or isinstance(v, float)) and math.isfinite(v)
 
 
-def count(lo: int = 0, default: Any = dataclasses.MISSING) -> Any:
-    return checked(lambda v: is_int(v) and v >= lo, f"an integer >= {lo}", default)
+def count(lo: int = 0, default: Any = dataclasses.MISSING, hi: int | None = None) -> Any:
+    """An integer >= ``lo`` (and <= ``hi``: a size past which a tensor would not fit in memory)."""
+    if hi is None:
+        return checked(lambda v: is_int(v) and v >= lo, f"an integer >= {lo}", default)
+    return checked(lambda v: is_int(v) and lo <= v <= hi, f"an integer in [{lo}, {hi:,}]", default)
 
 
 def positive(default: Any = dataclasses.MISSING) -> Any:

@@ -31,6 +31,11 @@ def pose(default: tuple[float, float, float]) -> Any:
     return checked(is_pose, "(x m, y m, yaw rad)", default)
 
 
+# Sizes past which the tensors of a batch would not fit in memory: refused with a named error up front.
+MAX_RAYS = 4096  # lidar rays and sectors, camera columns and rows
+MAX_RANGE = 10_000.0  # m, a sensor's range (the largest map's side)
+MAX_HISTORY = 64  # observation frames stacked
+
 @dataclass(frozen=True)
 class RobotConfig(Config):
     dt: float = positive(0.1)  # s per step
@@ -47,11 +52,11 @@ class RobotConfig(Config):
 
 @dataclass(frozen=True)
 class LidarConfig(Config):
-    n_rays: int = count(1, 20)  # raw rays; 180 reproduces the classic 1-degree scan
+    n_rays: int = count(1, 20, hi=MAX_RAYS)  # raw rays; 180 reproduces the classic 1-degree scan
     fov_deg: float = checked(lambda v: is_number(v) and 0 < v <= 360, "a number of degrees in (0, 360]", 180.0)  # degrees
     min_range: float = non_negative(0.0)  # m
-    max_range: float = positive(10.0)  # m (the classic 10 m cap)
-    n_sectors: int = count(1, 20)  # observation bins (min over consecutive rays); must divide n_rays
+    max_range: float = checked(lambda v: is_number(v) and 0 < v <= MAX_RANGE, f"a number of m in (0, {MAX_RANGE:g}]", 10.0)  # m (the classic 10 m cap)
+    n_sectors: int = count(1, 20, hi=MAX_RAYS)  # observation bins (min over consecutive rays); must divide n_rays
     noise_std: float = non_negative(0.0)  # m, Gaussian range noise
     offset: tuple[float, float, float] = pose((0.0, 0.0, 0.0))  # sensor pose on the robot: m, m, rad
     scan: str = one_of(*SCANS, default="rays")  # "rays", or "sectors": n_rays exact wedges (nearest obstacle point in each)
@@ -78,10 +83,10 @@ class CameraConfig(Config):
     """A forward ray-cast camera (docs/sim.md#camera): a depth row in the step, RGB on demand."""
 
     enabled: bool = False  # compute the depth row every step (state.cam_depth); needed by observation.camera
-    n_cols: int = count(1, 64)  # image width in pixels = depth readings
-    n_rows: int = count(1, 48)  # image height in pixels (RGB only)
+    n_cols: int = count(1, 64, hi=MAX_RAYS)  # image width in pixels = depth readings
+    n_rows: int = count(1, 48, hi=MAX_RAYS)  # image height in pixels (RGB only)
     fov_deg: float = checked(lambda v: is_number(v) and 0 < v < 180, "a number of degrees in (0, 180)", 90.0)  # horizontal field of view, degrees
-    max_range: float = positive(10.0)  # m, depth of misses and the depth row's cap
+    max_range: float = checked(lambda v: is_number(v) and 0 < v <= MAX_RANGE, f"a number of m in (0, {MAX_RANGE:g}]", 10.0)  # m, depth of misses and the depth row's cap
     height: float = non_negative(0.3)  # m above the floor
     offset: tuple[float, float, float] = pose((0.0, 0.0, 0.0))  # sensor pose on the robot: m, m, rad
 
@@ -147,7 +152,7 @@ class RewardConfig(Config):
 @dataclass(frozen=True)
 class ObservationConfig(Config):
     normalize: bool = True  # scale lidar and distances by max_range, angles by pi, speeds by limits
-    history: int = count(1, 1)  # stack the last k observations
+    history: int = count(1, 1, hi=MAX_HISTORY)  # stack the last k observations
     goal_from_odom: bool = False  # goal vector from the drifting odometry instead of the true pose
     imu: bool = False  # append the IMU reading [a_x, a_y, yaw rate] (needs imu.enabled)
     camera: bool = False  # append the camera's depth row, n_cols values (needs camera.enabled)
@@ -158,7 +163,7 @@ class ObservationConfig(Config):
     visit_sectors: int = count(0, 0)
     visit_radius: float = positive(3.0)  # m
     visit_spacing: float = positive(0.5)  # m between breadcrumbs
-    visit_memory: int = count(1, 64)  # breadcrumbs kept; the oldest is overwritten
+    visit_memory: int = count(1, 64, hi=4096)  # breadcrumbs kept; the oldest is overwritten
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,7 @@ class LineRewardConfig(Config):
 
 @dataclass(frozen=True)
 class LineObservationConfig(Config):
-    history: int = count(1, 6)  # sensor frames in the observation: current + (history - 1) previous
+    history: int = count(1, 6, hi=64)  # sensor frames in the observation: current + (history - 1) previous
 
 
 @dataclass(frozen=True)
