@@ -843,3 +843,29 @@ def test_a_map_of_ten_thousand_rows_parses_quickly(tmp_path):
     (tmp_path / "dup.yaml").write_text(f"size: [10, 10]\nsize: [5, 5]\ncircles:\n{rows}\n")
     with pytest.raises(MapError, match="size: duplicate key at line 2"):
         load_map(str(tmp_path / "dup.yaml"))
+
+
+@pytest.mark.parametrize("width", [1e-12, 1e6])
+def test_track_width_out_of_range_is_named(tmp_path, width):
+    from torchnav.tracks import load_track
+
+    (tmp_path / "t.yaml").write_text(f"width: {width}\nlines:\n  - {{points: [[0, 0], [1, 0], [1, 1]], closed: true, lap: true}}\n")
+    with pytest.raises(TrackError, match=r"width: expected a line width in \[0.001, 10\] m"):
+        load_track(str(tmp_path / "t.yaml"))
+
+
+def test_exports_keep_the_previous_file_on_a_failed_write(tmp_path, monkeypatch):
+    """The C and ONNX exports write through write_atomic: a write that fails keeps the previous files."""
+    import os
+
+    from torchnav.export.c import write_files
+
+    write_files(tmp_path, {"policy.h": "old"})
+
+    def full(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OSError, match="No space"):
+        write_files(tmp_path, {"policy.h": "new"})
+    assert (tmp_path / "policy.h").read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["policy.h"]

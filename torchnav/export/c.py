@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ..checkpoint import write_atomic
 from .common import Network, compare, outputs, run_tool
 
 C_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-O2"]
@@ -222,7 +223,7 @@ def write_files(out_dir: str | Path, files: dict[str, str]) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     for fname, text in files.items():
-        (out_dir / fname).write_text(text)
+        write_atomic(out_dir / fname, text)  # a failed write keeps the previous file whole
         paths.append(out_dir / fname)
     return paths
 

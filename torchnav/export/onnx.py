@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..checkpoint import write_atomic
 from .common import Network, compare
 
 OPSET = 17
@@ -79,7 +80,7 @@ def export_onnx(net: Network, path: str | Path) -> Path:
     path = Path(path)
     model = build_model(net)
     path.parent.mkdir(parents=True, exist_ok=True)
-    onnx.save_model(model, str(path))
+    write_atomic(path, model.SerializeToString())  # a failed write keeps the previous file whole
     return path
 
 

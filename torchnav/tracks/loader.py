@@ -85,7 +85,7 @@ def parse_track(data: Any, source: str = "<dict>", default_name: str = "track", 
     walls = _walls(ctx, d.get("walls", []))
     if "image" in d:
         return _track_from_png(ctx, d, name, desc, spacing, walls, base_dir)
-    width = check_number(ctx, d["width"], "width", "pos")
+    width = _width(ctx, d["width"])
     lines_v = d["lines"]
     if not isinstance(lines_v, list) or not lines_v:
         raise ctx.fail("lines", f"expected a non-empty list of lines, got {show(lines_v)}")
@@ -113,6 +113,17 @@ def parse_track(data: Any, source: str = "<dict>", default_name: str = "track", 
     )
 
 
+MAX_WIDTH = 10.0  # m, a line wider than this is no line for floor sensors
+MIN_WIDTH = 1e-3  # m, a line narrower than this no floor sensor resolves
+
+
+def _width(ctx: Any, v: Any) -> float:
+    w = check_number(ctx, v, "width", "pos")
+    if not MIN_WIDTH <= w <= MAX_WIDTH:
+        raise ctx.fail("width", f"expected a line width in [{MIN_WIDTH:g}, {MAX_WIDTH:g}] m, got {show(v)}")
+    return w
+
+
 def _track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, walls: np.ndarray, base_dir: Any) -> Track:
     """The ``image:`` form of a track file (called by the loader with the validated mapping)."""
     path = check_image(ctx, d["image"], "image", base_dir)
@@ -120,7 +131,7 @@ def _track_from_png(ctx: Any, d: dict, name: str, desc: str, spacing: float, wal
     origin = check_vector(ctx, d["origin"], "origin", 2) if "origin" in d else None
     thr = check_grey_level(ctx, d.get("threshold", 0.5), "threshold")
     invert = check_bool(ctx, d.get("invert", False), "invert")
-    width = check_number(ctx, d["width"], "width", "pos") if "width" in d else None
+    width = _width(ctx, d["width"]) if "width" in d else None
     lap = None
     if "lap" in d:
         lv = check_mapping(ctx, d["lap"], "lap", ("points",), ("corner_radius", "smooth"))
