@@ -13,7 +13,8 @@ import pytest
 pytest.importorskip("rosbags", reason="needs rosbags: pip install 'torchnav[ros]'")
 
 from torchnav.ros import replay_bag  # noqa: E402
-from torchnav.ros.bag import TOPICS, quaternion_yaw, read_messages  # noqa: E402
+from torchnav.ros.bag import TOPICS, read_messages  # noqa: E402
+from torchnav.ros.convert import quaternion_yaw  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 POLICY = ROOT / "checkpoints" / "td3_arena_actor.pt"

@@ -34,6 +34,7 @@ import torch
 
 from ..observation import Scan
 from ..sim.geometry import points_clearance
+from .convert import relative, yaw_quaternion
 
 T0_NS = 1_000_000_000  # ns, the first stamp (a zero stamp reads as "no time" to many ROS tools)
 INSTALL = "pip install 'torchnav[ros]' (rosbags==0.11.9)"
@@ -51,16 +52,6 @@ def typestore():
     except ImportError as e:
         raise ImportError(f"torchnav.ros.bag needs rosbags: {INSTALL}") from e
     return get_typestore(Stores.ROS2_HUMBLE)
-
-
-def yaw_quaternion(yaw: float) -> tuple[float, float, float, float]:
-    """``(x, y, z, w)`` of a rotation by ``yaw`` rad about z."""
-    return 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
-
-
-def quaternion_yaw(x: float, y: float, z: float, w: float) -> float:
-    """The rotation about z (rad) of a quaternion (the planar part of any orientation)."""
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def occupancy(world: Any, bounds: tuple[float, float, float, float], resolution: float = 0.05, max_cells: int = 1_000_000
@@ -163,13 +154,6 @@ class Messages:
         return self.T["std_msgs/msg/String"](data=text)
 
 
-def map_to_odom(pose: np.ndarray, odom: np.ndarray) -> tuple[float, float, float]:
-    """The transform ``map`` -> ``odom`` ``(x, y, yaw)`` that puts the odometry pose ``odom`` at the true ``pose`` (both ``(3,)``)."""
-    yaw = pose[2] - odom[2]
-    c, s = math.cos(yaw), math.sin(yaw)
-    return float(pose[0] - (c * odom[0] - s * odom[1])), float(pose[1] - (s * odom[0] + c * odom[1])), float(math.atan2(math.sin(yaw), math.cos(yaw)))
-
-
 def write_episode(path: str | Path, episode: Mapping[str, Any], lidar: Any, dt: float, metadata: Mapping[str, Any] | None = None,
                   overwrite: bool = True) -> Path:
     """Write one episode as a ROS 2 bag directory at ``path`` (see the module docstring).
@@ -203,7 +187,7 @@ def write_episode(path: str | Path, episode: Mapping[str, Any], lidar: Any, dt: 
         put("/map", t[0], m.grid(t[0], "map", cells, res, origin))
         put("/goal", t[0], m.pose_stamped(t[0], "map", goal[0], goal[1]))
         for k in range(steps + 1):
-            put("/tf", t[k], m.tf([m.transform(t[k], "map", "odom", *map_to_odom(pose[k], odom[k])),
+            put("/tf", t[k], m.tf([m.transform(t[k], "map", "odom", *relative(tuple(pose[k]), tuple(odom[k]))),
                                    m.transform(t[k], "odom", "base_link", *odom[k])]))
             put("/odom", t[k], m.odometry(t[k], *odom[k], *vel[k]))
             put("/scan", t[k], m.scan(t[k], Scan.of_sim(ranges[k].astype(np.float32), lidar), scan_time=dt))
@@ -305,4 +289,4 @@ def read_messages(path: str | Path, topics: Iterable[str] | None = None) -> list
     return out
 
 
-__all__ = ["BagRecorder", "Messages", "TOPICS", "occupancy", "quaternion_yaw", "read_messages", "typestore", "write_episode", "yaw_quaternion"]
+__all__ = ["BagRecorder", "Messages", "TOPICS", "occupancy", "read_messages", "typestore", "world_bounds", "write_episode"]

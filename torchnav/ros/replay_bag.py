@@ -22,22 +22,11 @@ import math
 import sys
 from pathlib import Path
 
-from ..observation import PolicyDriver, Scan
-from .bag import quaternion_yaw, read_messages
+from ..observation import PolicyDriver
+from .bag import read_messages
+from .convert import odom_of, scan_of
 
 FIELDS = ("t", "x", "y", "yaw", "v", "omega", "goal_distance", "unseen_bins", "bag_v", "bag_omega")
-
-
-def scan_of(msg) -> Scan:
-    """A ``sensor_msgs/LaserScan`` (ROS 1 or ROS 2) as a :class:`~torchnav.observation.Scan`."""
-    return Scan(ranges=list(map(float, msg.ranges)), angle_min=float(msg.angle_min), angle_increment=float(msg.angle_increment),
-                range_min=float(msg.range_min), range_max=float(msg.range_max))
-
-
-def odom_of(msg) -> tuple[tuple[float, float, float], tuple[float, float]]:
-    """A ``nav_msgs/Odometry`` -> ``((x, y, yaw), (v, omega))``."""
-    p, q, tw = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist
-    return (float(p.x), float(p.y), quaternion_yaw(q.x, q.y, q.z, q.w)), (float(tw.linear.x), float(tw.angular.z))
 
 
 def stamp_ns(msg, t_ns: int) -> int:
