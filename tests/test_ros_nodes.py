@@ -1,0 +1,158 @@
+"""The ROS 1 nodes against a real roscore: policy_node drives sim_node's robot to goals, with the outcomes of
+the in-process evaluation of the same episodes; bad inputs stop the robot with a named warning."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import xmlrpc.client
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+POLICY = ROOT / "checkpoints" / "td3_arena_actor.pt"
+ROS_PYTHON = "/usr/lib/python3/dist-packages"  # Debian's ROS 1 Python packages, after the project's own
+INSTALL = "apt-get install ros-core python3-rospy python3-tf2-ros python3-sensor-msgs python3-nav-msgs python3-geometry-msgs"
+
+pytestmark = pytest.mark.ros
+
+
+def _env(port: int, home: Path) -> dict:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), ROS_PYTHON]), "ROS_MASTER_URI": f"http://127.0.0.1:{port}",
+            "ROS_IP": "127.0.0.1", "ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log"), "PYTHONUNBUFFERED": "1"}
+
+
+def _have_ros() -> bool:
+    if shutil.which("roscore") is None:
+        return False
+    env = {**os.environ, "PYTHONPATH": ROS_PYTHON}
+    return subprocess.run([sys.executable, "-c", "import rospy, tf2_ros, sensor_msgs.msg, nav_msgs.msg"], env=env,
+                          capture_output=True).returncode == 0
+
+
+if not _have_ros():
+    pytest.skip(f"needs ROS 1 (roscore, rospy): {INSTALL}", allow_module_level=True)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def ros(tmp_path):
+    """A roscore on a free port; yields (env for ROS processes, a function starting more of them); stops them all."""
+    port = _free_port()
+    env = _env(port, tmp_path)
+    procs = []
+
+    def start(*args: str) -> subprocess.Popen:
+        log = open(tmp_path / f"proc{len(procs)}.log", "w")
+        p = subprocess.Popen(list(args), env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        procs.append((p, log))
+        return p
+
+    start("roscore", "-p", str(port))
+    master = xmlrpc.client.ServerProxy(env["ROS_MASTER_URI"])
+    for _ in range(200):
+        try:
+            master.getSystemState("/test")
+            break
+        except OSError:
+            time.sleep(0.1)
+    else:
+        pytest.fail("roscore did not start")
+    yield env, start, tmp_path
+    for p, log in reversed(procs):
+        if p.poll() is None:
+            os.killpg(p.pid, 2)  # SIGINT: roslaunch and the nodes shut down (the policy node publishes a stop)
+    for p, log in reversed(procs):
+        try:
+            p.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, 9)
+            p.wait()
+        log.close()
+
+
+CLIENT = r'''
+import json, sys, time, rospy
+from geometry_msgs.msg import PoseStamped, PoseWithCovarianceStamped
+from std_msgs.msg import String
+from torchnav.ros.convert import yaw_quaternion
+episodes = json.loads(sys.argv[1])
+rospy.init_node("torchnav_test_client")
+last = {}
+rospy.Subscriber("/torchnav_sim/episode", String, lambda m: last.update(json.loads(m.data)))
+start_pub = rospy.Publisher("/initialpose", PoseWithCovarianceStamped, queue_size=1, latch=True)
+goal_pub = rospy.Publisher("/move_base_simple/goal", PoseStamped, queue_size=1)
+deadline = time.time() + 60
+while (start_pub.get_num_connections() < 1 or goal_pub.get_num_connections() < 2 or not last) and time.time() < deadline:
+    time.sleep(0.05)
+out = []
+for ep in episodes:
+    (x, y, yaw), (gx, gy) = ep["start"], ep["goal"]
+    m = PoseWithCovarianceStamped()
+    m.header.frame_id = "map"
+    m.pose.pose.position.x, m.pose.pose.position.y = x, y
+    q = m.pose.pose.orientation
+    q.x, q.y, q.z, q.w = yaw_quaternion(yaw)
+    start_pub.publish(m)
+    t = time.time()
+    while last.get("status") != "ready" and time.time() - t < 20:
+        time.sleep(0.02)
+    n = last.get("episode")
+    g = PoseStamped()
+    g.header.frame_id, g.header.stamp = "map", rospy.Time.now()
+    g.pose.position.x, g.pose.position.y, g.pose.orientation.w = gx, gy, 1.0
+    goal_pub.publish(g)
+    t = time.time()
+    while not (last.get("episode") == n + 1 and last.get("status") in ("success", "collision", "timeout")) and time.time() - t < 120:
+        time.sleep(0.02)
+    out.append({"status": last.get("status"), "steps": last.get("steps"), "episode": last.get("episode")})
+print("RESULT " + json.dumps(out), flush=True)
+'''
+
+
+def _episodes(n: int, seed: int = 20000):
+    """``n`` evaluation episodes of the arena policy (starts and goals) and their in-process outcomes, each played
+    as the simulator node plays it: one episode in a fresh env of the seed (``run_episodes`` with one env)."""
+    from torchnav.envs import NavEnv
+    from torchnav.evaluation import eval_config, run_episodes
+    from torchnav.policy import load_policy
+
+    sp = load_policy(POLICY)
+    cfg = eval_config(sp.config(), anywhere=True)
+    td = NavEnv(cfg, num_envs=n, seed=seed).reset()
+    eps, want = [], []
+    for k in range(n):
+        start, goal = td["pose"][k], td["goal"][k]
+        res = run_episodes(sp.policy, cfg, 1, seed=seed, given=(start[None], goal[None]))
+        status = "success" if bool(res["success"][0]) else "collision" if bool(res["collision"][0]) else "timeout"
+        eps.append({"start": start.tolist(), "goal": goal.tolist()})
+        want.append({"status": status, "steps": int(res["length"][0])})
+    return eps, want
+
+
+def test_policy_node_drives_sim_node_to_the_goals(ros):
+    env, start, tmp = ros
+    py = sys.executable
+    start(py, "-m", "torchnav.ros.sim_node", f"_policy:={POLICY}", "_lockstep:=true", "__name:=torchnav_sim")
+    start(py, "-m", "torchnav.ros.policy_node", f"_policy:={POLICY}", "_trigger:=scan", "__name:=torchnav_policy")
+    eps, want = _episodes(3)
+    out = subprocess.run([py, "-c", CLIENT, json.dumps(eps)], env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    result = [line for line in out.stdout.splitlines() if line.startswith("RESULT ")]
+    logs = "\n".join(p.read_text()[-3000:] for p in sorted(tmp.glob("proc*.log")))
+    assert result, f"client failed:\n{out.stdout[-2000:]}\n{out.stderr[-3000:]}\n{logs}"
+    got = json.loads(result[0][len("RESULT "):])
+    assert [g["status"] for g in got] == [w["status"] for w in want], (got, want, logs)
+    assert [g["steps"] for g in got] == [w["steps"] for w in want], (got, want)
+    assert any(w["status"] == "success" for w in want)
