@@ -156,3 +156,101 @@ def test_policy_node_drives_sim_node_to_the_goals(ros):
     assert [g["status"] for g in got] == [w["status"] for w in want], (got, want, logs)
     assert [g["steps"] for g in got] == [w["steps"] for w in want], (got, want)
     assert any(w["status"] == "success" for w in want)
+
+
+@pytest.mark.slow
+def test_twenty_episodes_as_the_in_process_evaluation(ros):
+    """The long check: 20 evaluation episodes through both nodes, each with the in-process outcome and length."""
+    env, start, tmp = ros
+    py = sys.executable
+    start(py, "-m", "torchnav.ros.sim_node", f"_policy:={POLICY}", "_lockstep:=true", "__name:=torchnav_sim")
+    start(py, "-m", "torchnav.ros.policy_node", f"_policy:={POLICY}", "_trigger:=scan", "__name:=torchnav_policy")
+    eps, want = _episodes(20)
+    out = subprocess.run([py, "-c", CLIENT, json.dumps(eps)], env=env, cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    result = [line for line in out.stdout.splitlines() if line.startswith("RESULT ")]
+    assert result, out.stderr[-3000:]
+    got = json.loads(result[0][len("RESULT "):])
+    assert [(g["status"], g["steps"]) for g in got] == [(w["status"], w["steps"]) for w in want]
+
+
+BAD = r'''
+import json, math, sys, time, rospy
+from geometry_msgs.msg import PoseStamped, Twist
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import LaserScan
+from std_msgs.msg import String
+rospy.init_node("torchnav_bad_inputs")
+statuses, cmds = [], []
+rospy.Subscriber("/torchnav_policy/status", String, lambda m: statuses.append(m.data))
+rospy.Subscriber("/cmd_vel", Twist, lambda m: cmds.append((m.linear.x, m.angular.z)))
+scan_pub = rospy.Publisher("/scan", LaserScan, queue_size=1)
+odom_pub = rospy.Publisher("/odom", Odometry, queue_size=1)
+goal_pub = rospy.Publisher("/move_base_simple/goal", PoseStamped, queue_size=1)
+t = time.time()
+while min(p.get_num_connections() for p in (scan_pub, odom_pub, goal_pub)) < 1 and time.time() - t < 60:
+    time.sleep(0.05)
+while not statuses and time.time() - t < 60:
+    time.sleep(0.05)
+
+def scan():  # a 360-beam scan from straight ahead (not the policy's 20 rays over 180 degrees), with NaN and inf
+    m = LaserScan()
+    m.header.stamp, m.header.frame_id = rospy.Time.now(), "base_scan"
+    m.angle_min, m.angle_increment, m.range_min, m.range_max = 0.0, 2 * math.pi / 360, 0.12, 3.5
+    m.ranges = [math.nan if i % 7 == 0 else math.inf if i % 5 == 0 else 3.0 for i in range(360)]
+    scan_pub.publish(m)
+
+def odom(x=0.0):
+    m = Odometry()
+    m.header.stamp, m.header.frame_id, m.child_frame_id = rospy.Time.now(), "odom", "base_footprint"
+    m.pose.pose.position.x, m.pose.pose.orientation.w = x, 1.0
+    odom_pub.publish(m)
+
+def goal(frame):
+    m = PoseStamped()
+    m.header.stamp, m.header.frame_id = rospy.Time.now(), frame
+    m.pose.position.x, m.pose.orientation.w = 3.0, 1.0
+    goal_pub.publish(m)
+
+def run(seconds, with_scan=True, with_odom=True, x=0.0):
+    t = time.time()
+    while time.time() - t < seconds:
+        if with_odom:
+            odom(x)
+        if with_scan:
+            scan()
+        time.sleep(0.05)
+
+out = {}
+run(0.5)
+goal("base_link")  # no tf is published: refused
+run(1.0)
+out["refused"] = [s for s in statuses if "goal refused" in s]
+goal("odom")
+run(1.5)
+out["driving"] = "driving" in statuses
+out["moving"] = [c for c in cmds[-5:] if c != (0.0, 0.0)]
+run(1.5, with_odom=False)
+out["stale"] = statuses[-1]
+out["stale_cmd"] = cmds[-1]
+run(1.0, x=math.nan)
+out["nan"] = statuses[-1]
+out["nan_cmd"] = cmds[-1]
+print("RESULT " + json.dumps(out), flush=True)
+'''
+
+
+def test_bad_inputs_stop_the_robot_with_a_named_reason(ros):
+    env, start, tmp = ros
+    node = start(sys.executable, "-m", "torchnav.ros.policy_node", f"_policy:={POLICY}", "_stale_timeout:=0.5", "__name:=torchnav_policy")
+    out = subprocess.run([sys.executable, "-c", BAD], env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    result = [line for line in out.stdout.splitlines() if line.startswith("RESULT ")]
+    log = (tmp / "proc1.log").read_text()
+    assert result, f"{out.stderr[-3000:]}\n{log[-3000:]}"
+    got = json.loads(result[0][len("RESULT "):])
+    assert got["refused"] and "frame 'base_link'" in got["refused"][0], got
+    assert got["driving"] and got["moving"], got  # a scan of another layout, with NaN and inf, drives
+    assert all(abs(v) <= 1.0 and abs(w) <= 1.0 for v, w in got["moving"])  # the policy's limits
+    assert got["stale"].startswith("stopped: stale odometry") and got["stale_cmd"] == [0.0, 0.0], got
+    assert "pose must be 3 finite numbers" in got["nan"] and got["nan_cmd"] == [0.0, 0.0], got
+    assert "Traceback" not in log, log[-3000:]
+    assert node.poll() is None  # still running
