@@ -148,4 +148,4 @@ def test_bad_inputs_are_named():
     b.observe(scan, (0.0, 0.0, 0.0), (0.0, 0.0), (1.0, 1.0))
     assert b.twist(torch.tensor([math.nan, 0.5])) == (0.0, 0.5)  # a non-finite action is a stop (apply_limits)
     with pytest.raises(ValueError, match="not a navigation policy"):
-        PolicyDriver.load(CHECKPOINTS / "dqn_course_actor.pt")
+        PolicyDriver(load_policy(CHECKPOINTS / "dqn_course_actor.pt"))

@@ -10,7 +10,7 @@ checks it against the simulator for every shipped navigation policy).
 
 No ROS here: ``torchnav.ros`` turns ROS messages into :class:`Scan` and plain numbers.
 
-    drive = PolicyDriver.load("checkpoints/ppo_arena_actor.pt")
+    drive = PolicyDriver(load_policy("checkpoints/ppo_arena_actor.pt"))     # torchnav.policy.load_policy
     v, omega = drive.act(Scan(ranges, angle_min, angle_increment, range_min, range_max), (x, y, yaw), (v, omega), (gx, gy))
 
 Scans of another field of view, resolution or orientation are resampled to the simulator's ray
@@ -371,7 +371,8 @@ class ObservationBuilder:
 
 
 class PolicyDriver:
-    """A saved navigation policy (``actor.pt``) driving one robot: :class:`ObservationBuilder` and the network.
+    """A saved navigation policy driving one robot: :class:`ObservationBuilder` and the network.
+    ``saved``: ``torchnav.policy.load_policy("actor.pt")`` (a ``SavedPolicy`` of task ``"nav"``).
 
     :meth:`act` maps one step's readings to the twist to command; a recurrent policy's state and a
     discrete policy's argmax are handled here. :attr:`dt` is the control period the policy was trained
@@ -389,13 +390,6 @@ class PolicyDriver:
         self.dt = self.cfg.robot.dt
         self.goal_tolerance = self.cfg.goal_tolerance
         self.reset()
-
-    @classmethod
-    def load(cls, path: Any, scan_yaw: float = 0.0) -> "PolicyDriver":
-        """The driver of the policy file ``path`` (``torchnav.policy.load_policy``)."""
-        from .policy import load_policy
-
-        return cls(load_policy(path), scan_yaw)
 
     def reset(self) -> None:
         """A new episode (a new goal): history, breadcrumbs and a recurrent policy's state start anew."""

@@ -56,12 +56,13 @@ class PolicyNode:
         from std_msgs.msg import String
 
         from ..observation import PolicyDriver
+        from ..policy import load_policy
 
         self.rospy, self.Twist, self.String = rospy, Twist, String
         path = rospy.get_param("~policy", None)
         if not path:
             raise ValueError("~policy is not set: give the policy file, e.g. _policy:=checkpoints/ppo_arena_actor.pt")
-        self.driver = PolicyDriver.load(path, scan_yaw=float(rospy.get_param("~scan_yaw", 0.0)))
+        self.driver = PolicyDriver(load_policy(path), scan_yaw=float(rospy.get_param("~scan_yaw", 0.0)))
         r = self.driver.cfg.robot
         self.rate = float(rospy.get_param("~rate", 1.0 / self.driver.dt))
         if abs(self.rate * self.driver.dt - 1.0) > 0.05:

@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from ..observation import PolicyDriver
+from ..policy import load_policy
 from .bag import read_messages
 from .convert import odom_of, scan_of
 
@@ -121,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.goal is not None and not all(math.isfinite(g) for g in a.goal):
         p.error(f"--goal must be finite, got {a.goal}")
     try:
-        driver = PolicyDriver.load(a.policy, scan_yaw=a.scan_yaw)
+        driver = PolicyDriver(load_policy(a.policy), scan_yaw=a.scan_yaw)
         rows = replay(a.bag, driver, a.scan_topic, a.odom_topic, None if a.goal is None else tuple(a.goal), a.cmd_topic)
         write_rows(rows, Path(a.out))
     except (ValueError, FileNotFoundError, FileExistsError, ImportError) as e:
