@@ -14,7 +14,6 @@ import xmlrpc.client
 from pathlib import Path
 
 import pytest
-import torch
 
 ROOT = Path(__file__).resolve().parent.parent
 POLICY = ROOT / "checkpoints" / "td3_arena_actor.pt"
@@ -236,21 +235,40 @@ run(1.0, x=math.nan)
 out["nan"] = statuses[-1]
 out["nan_cmd"] = cmds[-1]
 print("RESULT " + json.dumps(out), flush=True)
+run(1.0)
+print("DRIVING " + json.dumps(cmds[-1]), flush=True)  # the test stops the node now
+t = time.time()
+while time.time() - t < 30:
+    n = len(cmds)
+    run(1.0)
+    if len(cmds) == n:  # no command for a second: the node is gone
+        break
+print("LAST " + json.dumps(cmds[-1]), flush=True)
 '''
 
 
 def test_bad_inputs_stop_the_robot_with_a_named_reason(ros):
     env, start, tmp = ros
     node = start(sys.executable, "-m", "torchnav.ros.policy_node", f"_policy:={POLICY}", "_stale_timeout:=0.5", "__name:=torchnav_policy")
-    out = subprocess.run([sys.executable, "-c", BAD], env=env, cwd=ROOT, capture_output=True, text=True, timeout=300)
-    result = [line for line in out.stdout.splitlines() if line.startswith("RESULT ")]
+    client = subprocess.Popen([sys.executable, "-c", BAD], env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines, alive = [], False
+    for line in client.stdout:
+        lines.append(line.strip())
+        if line.startswith("DRIVING "):
+            alive = node.poll() is None
+            os.killpg(node.pid, 2)  # Ctrl-C: the node's last command must be a stop
+    client.wait(timeout=120)
     log = (tmp / "proc1.log").read_text()
-    assert result, f"{out.stderr[-3000:]}\n{log[-3000:]}"
+    result = [line for line in lines if line.startswith("RESULT ")]
+    assert result, f"{client.stderr.read()[-3000:]}\n{log[-3000:]}"
     got = json.loads(result[0][len("RESULT "):])
     assert got["refused"] and "frame 'base_link'" in got["refused"][0], got
     assert got["driving"] and got["moving"], got  # a scan of another layout, with NaN and inf, drives
     assert all(abs(v) <= 1.0 and abs(w) <= 1.0 for v, w in got["moving"])  # the policy's limits
     assert got["stale"].startswith("stopped: stale odometry") and got["stale_cmd"] == [0.0, 0.0], got
     assert "pose must be 3 finite numbers" in got["nan"] and got["nan_cmd"] == [0.0, 0.0], got
+    assert alive  # every bad input above was survived
+    driving = json.loads(next(line for line in lines if line.startswith("DRIVING "))[len("DRIVING "):])
+    last = json.loads(next(line for line in lines if line.startswith("LAST "))[len("LAST "):])
+    assert driving != [0.0, 0.0] and last == [0.0, 0.0], (driving, last)
     assert "Traceback" not in log, log[-3000:]
-    assert node.poll() is None  # still running

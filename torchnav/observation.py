@@ -402,8 +402,7 @@ class PolicyDriver:
         """The policy's deterministic action for ``obs`` ``(obs_size,)``: ``(2,)`` in [-1, 1], or one-hot ``(A,)``."""
         x = obs[None]
         if self.actor.recurrent:
-            first = torch.tensor([self.state is not None and self.builder.history is not None and self.action is None])
-            out, self.state = self.actor.step(x, self.state, first)
+            out, self.state = self.actor.step(x, self.state, torch.tensor([self.action is None]))  # the episode's first step
         else:
             out = self.actor(x)
         if self.actor.output == "argmax":

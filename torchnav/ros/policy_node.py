@@ -81,6 +81,7 @@ class PolicyNode:
         self.goal_stamp = 0.0
         self.acted_stamp = -1.0  # stamp of the last scan acted upon
         self.status = ""
+        self.shutting_down = False
         self.tf = tf2_ros.Buffer()
         self.tf_listener = tf2_ros.TransformListener(self.tf)
         self.cmd = rospy.Publisher(rospy.get_param("~cmd_topic", "/cmd_vel"), Twist, queue_size=1)
@@ -145,20 +146,24 @@ class PolicyNode:
         return gx, gy
 
     def on_shutdown(self) -> None:
-        self.cmd.publish(self.Twist())
+        with self.lock:  # no control step after this one: the last command is a stop
+            self.shutting_down = True
+            self.cmd.publish(self.Twist())
 
     # -- control -----------------------------------------------------------------------------------
 
     def tick(self) -> None:
         """One control step: the policy's twist, or a stop (with the reason in ``~status``)."""
         with self.lock:
+            if self.shutting_down:
+                return
             try:
                 twist = self.control()
             except Exception as e:  # noqa: BLE001 - never a traceback: stop and say why
                 self.warn("error", f"stopped: {type(e).__name__}: {e}")
                 twist = (0.0, 0.0)
-        if twist is not None:
-            self.publish(*twist)
+            if twist is not None:
+                self.publish(*twist)
 
     def control(self) -> tuple[float, float] | None:
         """The twist to publish now, or None (nothing new to act on: trigger ``scan``)."""
