@@ -21,7 +21,8 @@ Private parameters: ``~policy`` (its task config: robot, lidar, map) or ``~map``
 the policy's, ``arena`` without a policy), ``~seed`` (20000, the evaluation's), ``~lockstep`` (false:
 step every ``dt`` of wall time with the latest command, stopping after ``~cmd_timeout`` s without one;
 true: one step per command received during an episode, for reproducible runs against ``policy_node``
-with ``_trigger:=scan``), topic names as above and ``~initialpose_topic``.
+with ``_trigger:=scan``), topic names as above and ``~initialpose_topic``, frame names ``~map_frame``,
+``~odom_frame``, ``~base_frame`` (``base_link``) and ``~laser_frame``.
 """
 
 from __future__ import annotations
@@ -80,6 +81,7 @@ class SimNode:
         self.lockstep = bool(rospy.get_param("~lockstep", False))
         self.cmd_timeout = float(rospy.get_param("~cmd_timeout", 0.5))
         self.params = self.cfg.sim_params()
+        self.frames = {k: rospy.get_param(f"~{k}_frame", k if k != "base" else "base_link") for k in ("map", "odom", "base", "laser")}
         self.dt = self.params.dt
         self.lock = threading.Lock()
         self.twist, self.twist_time = (0.0, 0.0), -math.inf
@@ -93,7 +95,7 @@ class SimNode:
         self.tf = tf2_ros.TransformBroadcaster()
         self.tf_static = tf2_ros.StaticTransformBroadcaster()
         ox, oy, oyaw = self.params.lidar.offset
-        self.tf_static.sendTransform(self.transform(rospy.Time.now(), "base_link", "laser", (ox, oy, oyaw)))
+        self.tf_static.sendTransform(self.transform(rospy.Time.now(), self.frames["base"], self.frames["laser"], (ox, oy, oyaw)))
         self.new_episode(None, None)  # a sampled start to stand at until the first goal
         rospy.Subscriber(rospy.get_param("~cmd_topic", "/cmd_vel"), Twist, self.on_cmd, queue_size=10)
         rospy.Subscriber(rospy.get_param("~goal_topic", "/move_base_simple/goal"), PoseStamped, self.on_goal, queue_size=1)
@@ -130,8 +132,9 @@ class SimNode:
 
     def on_goal(self, msg: Any) -> None:
         x, y, _ = pose_of(msg.pose)
-        if msg.header.frame_id.lstrip("/") not in ("", "map", "odom"):
-            self.rospy.logwarn_throttle(2.0, f"sim_node: goal refused: frame {msg.header.frame_id!r}; the simulator takes goals in 'map'")
+        if msg.header.frame_id.lstrip("/") not in ("", self.frames["map"], self.frames["odom"]):
+            self.rospy.logwarn_throttle(2.0, f"sim_node: goal refused: frame {msg.header.frame_id!r}; the simulator takes goals in "
+                                             f"{self.frames['map']!r}")
             return
         with self.lock:
             start = self.pending_start or tuple(float(v) for v in self.sim.pose[0])
@@ -203,9 +206,10 @@ class SimNode:
         now = rospy.Time.now()
         odom = tuple(float(v) for v in s.odom[0])
         pose = tuple(float(v) for v in s.pose[0])
-        self.tf.sendTransform([self.transform(now, "map", "odom", relative(pose, odom)), self.transform(now, "odom", "base_link", odom)])
+        f = self.frames
+        self.tf.sendTransform([self.transform(now, f["map"], f["odom"], relative(pose, odom)), self.transform(now, f["odom"], f["base"], odom)])
         o = self.msgs["Odometry"]()
-        o.header.stamp, o.header.frame_id, o.child_frame_id = now, "odom", "base_link"
+        o.header.stamp, o.header.frame_id, o.child_frame_id = now, f["odom"], f["base"]
         o.pose.pose.position.x, o.pose.pose.position.y = odom[0], odom[1]
         q = o.pose.pose.orientation
         q.x, q.y, q.z, q.w = yaw_quaternion(odom[2])
@@ -213,7 +217,7 @@ class SimNode:
         self.odom_pub.publish(o)
         scan = Scan.of_sim(s.ranges[0].tolist(), self.params.lidar)
         m = self.msgs["LaserScan"]()
-        m.header.stamp, m.header.frame_id = now, "laser"
+        m.header.stamp, m.header.frame_id = now, f["laser"]
         m.angle_min, m.angle_increment = scan.angle_min, scan.angle_increment
         m.angle_max = scan.angle_min + scan.angle_increment * (len(scan.ranges) - 1)
         m.range_min, m.range_max, m.scan_time, m.ranges = scan.range_min, scan.range_max, self.dt, scan.ranges
@@ -229,7 +233,7 @@ class SimNode:
         goal = self.state.goal[0].numpy()
         cells, res, origin = occupancy(w, world_bounds(w, np.stack((pose, goal))))
         g = self.msgs["OccupancyGrid"]()
-        g.header.stamp, g.header.frame_id = self.rospy.Time.now(), "map"
+        g.header.stamp, g.header.frame_id = self.rospy.Time.now(), self.frames["map"]
         g.info.resolution, g.info.height, g.info.width = res, cells.shape[0], cells.shape[1]
         g.info.origin.position.x, g.info.origin.position.y = origin
         g.info.origin.orientation.w = 1.0
