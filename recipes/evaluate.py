@@ -8,6 +8,7 @@ recipes/mappo_nav.py) on team success, robots at their goal and collisions, with
     python recipes/evaluate.py                                  # the shipped checkpoint on arena
     python recipes/evaluate.py runs/td3_lidar_.../actor.pt --map warehouse --episodes 1000 --json out.json
     python recipes/evaluate.py CKPT --record 5                  # also write 5 episodes to an MCAP file (--record-path)
+    python recipes/evaluate.py CKPT --record-bag runs/bags --bag-episodes 3   # 3 episodes as ROS 2 bags (docs/ros.md)
     python recipes/evaluate.py CKPT --episodes-file my_episodes.yaml   # given starts and goals (a map)
     python recipes/evaluate.py runs/mappo_nav_.../actor.pt --set robots.n=8      # a multi-robot policy with 8 robots
     python recipes/evaluate.py --controller orca --set robots.n=4 robots.scenario=circle_swap
@@ -93,6 +94,10 @@ def main(argv: list[str]) -> dict:
     p.add_argument("--json", default=None, help="write the results as JSON to this path")
     p.add_argument("--record", type=int, default=0, help="write this many episodes to an MCAP file")
     p.add_argument("--record-path", default=None, help="MCAP path (default: eval_episodes.mcap beside a run's checkpoint, else runs/eval/<checkpoint>_<map>.mcap)")
+    p.add_argument("--record-bag", default=None, metavar="DIR",
+                   help="navigation: write the first --bag-episodes episodes as ROS 2 bags DIR/episode_000, ... (MCAP storage; "
+                        "needs rosbags: pip install 'torchnav[ros]'; docs/ros.md)")
+    p.add_argument("--bag-episodes", type=int, default=1, help="episodes written with --record-bag (default 1)")
     p.add_argument("--live", type=int, default=None, metavar="PORT",
                    help="after evaluating, stream --live-episodes episodes to the Foxglove app over a WebSocket server on PORT "
                         "(Foxglove: Open connection -> Foxglove WebSocket -> ws://localhost:PORT)")
@@ -122,7 +127,8 @@ def main(argv: list[str]) -> dict:
             p.error(f"--map {a.map} but {a.episodes_file} was written for map {file_map}")
         a.map = a.map or file_map
         a.episodes = len(given[0])
-        for flag, n in (("--record", a.record), ("--live-episodes", a.live_episodes if a.live is not None else 0)):
+        for flag, n in (("--record", a.record), ("--live-episodes", a.live_episodes if a.live is not None else 0),
+                        ("--bag-episodes", a.bag_episodes if a.record_bag else 0)):
             if n > a.episodes:
                 p.error(f"{flag} {n}: {a.episodes_file} holds {a.episodes} episodes (it records the first ones)")
     a.episodes = 1000 if a.episodes is None else a.episodes
@@ -142,6 +148,8 @@ def main(argv: list[str]) -> dict:
     for flag, used, task_kind in (("--laps", a.laps is not None, "line"), ("--curriculum", a.curriculum, "nav"), ("--episodes-file", given is not None, "nav")):
         if used and task_name != task_kind:
             p.error(f"{flag} is for {'line-following' if task_kind == 'line' else 'navigation'} policies; {what}")
+    if a.record_bag and (task_name != "nav" or a.bag_episodes < 1):
+        p.error(f"--record-bag records navigation episodes (--bag-episodes >= 1); {what}" if task_name != "nav" else "--bag-episodes must be >= 1")
     if a.laps is not None and a.laps < 1:
         p.error("--laps must be >= 1")
     trained = {} if sp is None else sp.task_config  # the task the checkpoint was trained on, or the defaults
@@ -187,6 +195,12 @@ def main(argv: list[str]) -> dict:
         path = Path(a.record_path) if a.record_path else default_record_path(ckpt or Path(a.controller), "worlds" if generated else where)
         rec = task.record(actor, path, a.record, a.seed, a.device, {"checkpoint": str(ckpt or a.controller), "map": where}, first_of(a.record))
         print(f"recorded {a.record} episodes to {path}" if rec.error is None else f"recording failed: {rec.error}")
+    if a.record_bag:
+        from torchnav.ros.bag import BagRecorder
+
+        meta = {"checkpoint": str(ckpt or a.controller), "map": where, "seed": a.seed}
+        rec = task.record_with(actor, a.bag_episodes, a.seed, a.device, lambda env: BagRecorder(a.record_bag, env, meta), first_of(a.bag_episodes))
+        print(f"wrote {len(rec.written)} ROS 2 bags under {a.record_bag}" if rec.error is None else f"bag recording failed: {rec.error}")
     if a.live is not None:
         from torchnav.record import LiveView
 

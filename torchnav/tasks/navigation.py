@@ -15,9 +15,11 @@ from tensordict import tensorclass
 from torch import Tensor
 
 from ..maps import load_map
+from .. import observation as O
+from ..observation import FAR, drop_crumb, visit_features  # noqa: F401  (re-exported: the task's breadcrumbs)
 from ..maps.free_space import check_room
-from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params, sectorize, wrap_angle
-from ..sim.kinematics import forward_speed_guard, guard_bearings
+from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pad_world, safe_hypot, sample_env_params
+from ..sim.kinematics import guard_bearings
 from ..sim.movers import Movers
 from ..sim.randomize import max_delay
 from ..sim.static_map import StaticMap, static_reach
@@ -63,10 +65,7 @@ class NavTask(BatchedTask):
         # reward.progress_distance: geodesic keeps each episode's grid of path distances to its goal.
         self.guide_cells = GUIDE_CELLS if cfg.reward.progress_distance == "geodesic" else 0
         self.term_names = tuple(self.weights)
-        self.n_sectors = cfg.lidar.n_sectors
-        self.n_imu = 3 if cfg.observation.imu else 0
-        self.n_depth = cfg.camera.n_cols if cfg.observation.camera else 0
-        self.n_visits = cfg.observation.visit_sectors
+        self.n_sectors, self.n_imu, self.n_depth, self.n_visits = O.frame_sizes(cfg)
         self.visit_memory = cfg.observation.visit_memory if self.n_visits else 0  # breadcrumbs kept per env
         self.frame_size = self.n_sectors + 4 + self.n_imu + self.n_depth + self.n_visits
         self.obs_size = self.frame_size * cfg.observation.history
@@ -77,9 +76,8 @@ class NavTask(BatchedTask):
         else:
             # Fixed obstacles with every random slot masked off; resets fill the random slots.
             self.base_world = self.spec.build_world(num_envs, device=self.device, dtype=dtype, fixed=self.static is None)
-        scale = torch.tensor((cfg.robot.v_max, cfg.robot.omega_max), dtype=dtype, device=self.device)
-        self.discrete_twists = torch.tensor(cfg.action.discrete_set, dtype=dtype, device=self.device) * scale
-        self._obs_scale = self._make_obs_scale()
+        self.discrete_twists = O.discrete_twists(cfg, dtype, self.device)
+        self._obs_scale = O.obs_scale(cfg, dtype, self.device)
         guarded = cfg.action.stop_clearance is not None
         self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device) if guarded else None
         self._sim_step = sim_step
@@ -105,28 +103,12 @@ class NavTask(BatchedTask):
     # -- actions and observations -------------------------------------------------
 
     def command(self, action: Tensor) -> Tensor:
-        """Policy action -> twist ``(B, 2)`` in m/s and rad/s.
+        """Policy action -> twist ``(B, 2)`` in m/s and rad/s (``torchnav.observation.command``).
 
         Continuous: ``(B, 2)`` in [-1, 1] (clamped); a[0] -> v in [0, v_max] (forward only)
         or [-v_max, v_max], a[1] -> omega in [-omega_max, omega_max]. Discrete: one-hot ``(B, n)``.
         """
-        r = self.cfg.robot
-        if self.cfg.action.mode == "discrete":
-            return action.to(self.dtype) @ self.discrete_twists
-        a = action.clamp(-1.0, 1.0)
-        v = (a[:, 0] + 1.0) * (0.5 * r.v_max) if self.cfg.action.forward_only else a[:, 0] * r.v_max
-        return torch.stack((v, a[:, 1] * r.omega_max), dim=-1)
-
-    def _make_obs_scale(self) -> Tensor:
-        li, r = self.cfg.lidar, self.cfg.robot
-        if not self.cfg.observation.normalize:
-            return torch.ones(self.frame_size, dtype=self.dtype, device=self.device)
-        s = [1.0 / li.max_range] * self.n_sectors + [1.0 / li.max_range, 1.0 / math.pi, 1.0 / r.v_max, 1.0 / max(r.omega_max, 1e-9)]
-        # IMU: accelerations by the largest centripetal one (v_max * omega_max), yaw rate by omega_max.
-        s += [1.0 / max(r.v_max * r.omega_max, 1e-9)] * 2 + [1.0 / max(r.omega_max, 1e-9)] if self.n_imu else []
-        s += [1.0 / self.cfg.camera.max_range] * self.n_depth
-        s += [1.0] * self.n_visits  # already in [0, 1)
-        return torch.tensor(s, dtype=self.dtype, device=self.device)
+        return O.command(self.cfg, action, self.discrete_twists, self.dtype)
 
     @property
     def unit_features(self) -> Tensor:
@@ -139,32 +121,15 @@ class NavTask(BatchedTask):
     @staticmethod
     def goal_vector(pose: Tensor, goal: Tensor) -> tuple[Tensor, Tensor]:
         """Distance (m) and bearing (rad, robot frame, CCW) from ``pose`` ``(B, 3)`` to ``goal`` ``(B, 2)``."""
-        dx, dy = goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1]
-        dist = safe_hypot(dx, dy)
-        far = dist > 1e-6  # atan2 has no gradient at the origin
-        bearing = wrap_angle(torch.atan2(torch.where(far, dy, 0.0), torch.where(far, dx, 1.0)) - pose[:, 2])
-        return dist, bearing
+        return O.goal_vector(pose, goal)
 
     def observe(self, sim: SimState, goal: Tensor, crumbs: Tensor | None = None) -> Tensor:
         """One observation ``(B, D)``: lidar sectors, goal distance and bearing, (v, omega), then the
         IMU reading (``observation.imu``), the camera's depth row (``observation.camera``) and the
-        breadcrumbs ``crumbs`` ``(B, K, 2)`` seen per sector (``observation.visit_sectors``)."""
-        sectors = sectorize(sim.ranges, self.n_sectors)
-        pose = sim.odom if self.cfg.observation.goal_from_odom else sim.pose
-        dist, bearing = self.goal_vector(pose, goal)
-        if self.cfg.observation.goal_distance_cap is not None:
-            dist = dist.clamp(max=self.cfg.observation.goal_distance_cap)
-        parts = [sectors, dist[:, None], bearing[:, None], sim.vel]
-        if self.n_imu:
-            parts.append(sim.imu)
-        if self.n_depth:
-            parts.append(sim.cam_depth)
-        if self.n_visits:
-            if crumbs is None:
-                raise ValueError("observation.visit_sectors is on: observe needs the episode's breadcrumbs (NavState.crumbs)")
-            parts.append(visit_features(sim.odom, crumbs, self.n_visits, self.cfg.observation.visit_radius))
-        obs = torch.cat(parts, dim=-1)
-        return obs * self._obs_scale
+        breadcrumbs ``crumbs`` ``(B, K, 2)`` seen per sector (``observation.visit_sectors``);
+        ``torchnav.observation.observation_frame``, which a robot's observation is built with too."""
+        return O.observation_frame(self.cfg, self._obs_scale, sim.ranges, sim.pose, sim.odom, sim.vel, goal, crumbs,
+                                   sim.imu if self.n_imu else None, sim.cam_depth if self.n_depth else None)
 
     # -- reset ----------------------------------------------------------------------
 
@@ -202,9 +167,7 @@ class NavTask(BatchedTask):
             env_params = nominal_env_params(self.params, n, start)
         sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
                          delay_steps=self.delay_steps, static=self.static)
-        crumbs = torch.full((n, self.visit_memory, 2), FAR, dtype=self.dtype, device=self.device)
-        crumbs[:, :1] = sim.odom[:, None, :2].detach()  # the first breadcrumb marks the start (no memory without visit_sectors)
-        crumb_count = torch.ones(n, dtype=torch.int64, device=self.device)
+        crumbs, crumb_count = O.first_crumbs(sim.odom, self.visit_memory)  # the first marks the start (no memory without visit_sectors)
         obs = self.observe(sim, goal, crumbs)
         dist, _ = self.goal_vector(sim.pose, goal)
         return NavState(
@@ -359,11 +322,8 @@ class NavTask(BatchedTask):
         ``success``, ``collision`` ``(B,)`` bool.
         """
         twist = self.command(action)
-        if self.cfg.action.stop_clearance is not None:
-            radius = state.env_params.robot_radius if self.randomized else self.params.robot_radius
-            cap = forward_speed_guard(state.sim.ranges, self.params.lidar, radius, self.cfg.action.stop_clearance, self.params.dt,
-                                      self._guard_bearings)
-            twist = torch.stack((torch.minimum(twist[:, 0], cap), twist[:, 1]), dim=-1)
+        radius = state.env_params.robot_radius if self.randomized else self.params.robot_radius
+        twist = O.guarded(self.cfg, twist, state.sim.ranges, self.params.lidar, radius, self.params.dt, self._guard_bearings)
         sim = self._sim_step(state.sim, twist, state.world, self.params, generator=generator,
                              env_params=state.env_params if self.randomized else None, static=self.static)
         dist, bearing = self.goal_vector(sim.pose, state.goal)
@@ -416,34 +376,3 @@ class NavState(TaskState):
     env_params: EnvParams  # per-env robot and sensor parameters (cfg.randomize; cfg's values when none)
     crumbs: Tensor  # (B, K, 2) m, breadcrumbs dropped along the odometry's path (K = observation.visit_memory, 0 when off); FAR where none yet
     crumb_count: Tensor  # (B,) int64 breadcrumbs dropped this episode (the newest is at (count - 1) % K)
-
-
-FAR = 1.0e6  # m, where an unused breadcrumb slot lies: beyond any visit radius
-
-
-def drop_crumb(crumbs: Tensor, count: Tensor, odom: Tensor, spacing: float) -> tuple[Tensor, Tensor]:
-    """``crumbs`` ``(B, K, 2)`` and ``count`` ``(B,)`` after a step that ended at ``odom`` ``(B, 3)``: a
-    new breadcrumb at the odometry's position in the envs that drove at least ``spacing`` m from the
-    newest one, written over the oldest once all ``K`` slots are used. No host synchronisation."""
-    k = crumbs.shape[1]
-    newest = crumbs.gather(1, ((count - 1) % k)[:, None, None].expand(-1, 1, 2)).squeeze(1)
-    drop = safe_hypot(odom[:, 0] - newest[:, 0], odom[:, 1] - newest[:, 1]) >= spacing
-    slot = torch.arange(k, device=crumbs.device) == (count % k)[:, None]
-    crumbs = torch.where((drop[:, None] & slot)[..., None], odom[:, None, :2].detach(), crumbs)
-    return crumbs, count + drop.long()
-
-
-def visit_features(odom: Tensor, crumbs: Tensor, n_sectors: int, radius: float) -> Tensor:
-    """How visited each direction around the robot is, ``(B, S)`` in [0, 1): sector ``k`` covers
-    bearings within ``pi / S`` of ``2 pi k / S`` (robot frame, counter-clockwise; sector 0 ahead).
-    A breadcrumb at distance ``d`` weighs ``max(0, 1 - d / radius)``; a sector reads
-    ``1 - exp(-w / 4)`` of its summed weight ``w``: one straight pass of breadcrumbs 0.5 m apart
-    through a 3 m radius reads about 0.46, two 0.71. Not differentiable (a count)."""
-    odom, crumbs = odom.detach(), crumbs.detach()
-    dx, dy = crumbs[..., 0] - odom[:, None, 0], crumbs[..., 1] - odom[:, None, 1]
-    c, s = torch.cos(odom[:, 2:3]), torch.sin(odom[:, 2:3])
-    x, y = c * dx + s * dy, c * dy - s * dx  # robot frame
-    weight = (1.0 - torch.sqrt(x * x + y * y) / radius).clamp(min=0.0)
-    sector = torch.round(torch.atan2(y, x) * (n_sectors / (2 * math.pi))).long() % n_sectors
-    summed = torch.zeros(odom.shape[0], n_sectors, dtype=odom.dtype, device=odom.device).scatter_add_(1, sector, weight)
-    return 1.0 - torch.exp(-summed / 4.0)
