@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any
 
 from ..observation import Scan
@@ -55,3 +56,22 @@ def relative(pose: tuple[float, float, float], odom: tuple[float, float, float])
     yaw = pose[2] - odom[2]
     c, s = math.cos(yaw), math.sin(yaw)
     return pose[0] - (c * odom[0] - s * odom[1]), pose[1] - (s * odom[0] + c * odom[1]), math.atan2(math.sin(yaw), math.cos(yaw))
+
+
+def run_node(module: str, name: str, node: Any, argv: list[str] | None = None) -> int:
+    """The ``main`` of a ROS 1 node: import rospy (a missing one is named, exit 2), ``init_node(name)``,
+    build ``node(rospy)`` (a bad parameter is logged, exit 2), then spin until shutdown (exit 0)."""
+    try:
+        import rospy
+    except ImportError as e:
+        print(f"torchnav.ros.{module} needs {ROSPY_INSTALL} ({e})", file=sys.stderr)
+        return 2
+    rospy.init_node(name, argv=argv)
+    try:
+        node(rospy)
+    except (ValueError, FileNotFoundError) as e:
+        rospy.logerr(f"{module}: {e}")
+        return 2
+    rospy.spin()
+    return 0
+

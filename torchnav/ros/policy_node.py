@@ -32,17 +32,9 @@ import sys
 import threading
 from typing import Any
 
-from .convert import ROSPY_INSTALL, compose, odom_of, pose_of, quaternion_yaw, scan_of
+from .convert import compose, odom_of, pose_of, quaternion_yaw, run_node, scan_of
 
 WARN_PERIOD = 2.0  # s between repeats of one warning
-
-
-def _rospy():
-    try:
-        import rospy
-    except ImportError as e:
-        raise ImportError(f"torchnav.ros.policy_node needs {ROSPY_INSTALL}") from e
-    return rospy
 
 
 class PolicyNode:
@@ -226,19 +218,7 @@ class PolicyNode:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        rospy = _rospy()
-    except ImportError as e:
-        print(e, file=sys.stderr)
-        return 2
-    rospy.init_node("torchnav_policy", argv=argv)
-    try:
-        PolicyNode(rospy)
-    except (ValueError, FileNotFoundError) as e:
-        rospy.logerr(f"policy_node: {e}")
-        return 2
-    rospy.spin()
-    return 0
+    return run_node("policy_node", "torchnav_policy", PolicyNode, argv)
 
 
 if __name__ == "__main__":

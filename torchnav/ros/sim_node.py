@@ -35,15 +35,7 @@ from typing import Any
 
 import torch
 
-from .convert import ROSPY_INSTALL, pose_of, relative, yaw_quaternion
-
-
-def _rospy():
-    try:
-        import rospy
-    except ImportError as e:
-        raise ImportError(f"torchnav.ros.sim_node needs {ROSPY_INSTALL}") from e
-    return rospy
+from .convert import pose_of, relative, run_node, yaw_quaternion
 
 
 def sim_config(policy: str | None, map: str | None):
@@ -242,19 +234,7 @@ class SimNode:
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:
-        rospy = _rospy()
-    except ImportError as e:
-        print(e, file=sys.stderr)
-        return 2
-    rospy.init_node("torchnav_sim", argv=argv)
-    try:
-        SimNode(rospy)
-    except (ValueError, FileNotFoundError) as e:
-        rospy.logerr(f"sim_node: {e}")
-        return 2
-    rospy.spin()
-    return 0
+    return run_node("sim_node", "torchnav_sim", SimNode, argv)
 
 
 if __name__ == "__main__":
