@@ -280,6 +280,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             env = None
             gc.collect()
             s["rss_mb"].append(rss_mb())
+            print(f"#   {name}: {s['env_steps']:,} env-steps, {s['rates'][-1] if s['rates'] else math.nan:,.0f} env-steps/s last window, "
+                  f"at {time.perf_counter() - t_start:.0f} s", file=sys.stderr, flush=True)
         rss_rounds.append(rss_mb())
         print(f"# round {r + 1}/{a.rounds} done at {time.perf_counter() - t_start:.0f} s, RSS {rss_rounds[-1]:.0f} MB", file=sys.stderr, flush=True)
     rows = []

@@ -9,7 +9,8 @@ Subscribes to a ``sensor_msgs/LaserScan`` (``~scan_topic``, default ``/scan``), 
 ``torchnav.observation.PolicyDriver``: the observation the policy was trained on, its speed guard
 and its speed limits. A goal in another frame than the odometry's is transformed by tf2 (refused,
 with a warning, when no transform is known). ``~status`` (``std_msgs/String``, latched) says what
-it does: ``idle``, ``driving``, ``reached``, ``stopped: <why>``.
+it does: ``idle``, ``goal (x, y)`` (a new goal taken, in the odometry's frame), ``driving``,
+``reached``, ``stopped: <why>``.
 
 It stops the robot (publishes a zero twist) when it has no goal, when the goal is reached (the
 policy's goal tolerance), when the scan or the odometry is older than ``~stale_timeout`` s, when a
@@ -114,7 +115,7 @@ class PolicyNode:
             self.goal, self.goal_stamp = goal, msg.header.stamp.to_sec()
             self.driver.reset()
         self.rospy.loginfo(f"policy_node: new goal ({goal[0]:.2f}, {goal[1]:.2f}) in the odometry's frame")
-        self.say("driving")
+        self.say(f"goal ({goal[0]:.2f}, {goal[1]:.2f})")
         if self.trigger == "scan":
             self.tick()
 
