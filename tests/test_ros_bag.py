@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("rosbags", reason="needs rosbags: pip install 'torchnav[ros]'")
 
 from torchnav.ros import replay_bag  # noqa: E402
-from torchnav.ros.bag import TOPICS, read_messages  # noqa: E402
+from torchnav.ros.bag import TOPICS, occupancy, read_messages  # noqa: E402
 from torchnav.ros.convert import quaternion_yaw  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -138,3 +138,21 @@ def test_replay_reads_a_ros1_bag(recorded, tmp_path):
     r1, r2 = list(csv.DictReader(open(a))), list(csv.DictReader(open(b)))
     assert len(r1) == len(r2) > 5
     assert [(r["t"], r["v"], r["omega"]) for r in r1] == [(r["t"], r["v"], r["omega"]) for r in r2]
+
+
+def test_the_map_grid_marks_every_wall_even_on_a_cell_boundary():
+    """arena's walls (x, y = +-5 m) lie exactly on cell boundaries of a grid from -5.5 m at 0.05 m: each marks
+    a full line of cells (with half a cell's distance, two of the four were lost to rounding)."""
+    from torchnav.envs import make_nav_env
+
+    env = make_nav_env("arena", num_envs=1)
+    env.reset()
+    cells, res, (x0, y0) = occupancy(env.state.world[0:1], (-5.5, -5.5, 5.5, 5.5))
+    index = lambda v, o: int(round((v - o) / res))  # noqa: E731 - the cell boundary at v
+    span = slice(index(-4.5, y0), index(4.5, y0))
+    for x in (-5.0, 5.0):
+        i = index(x, x0)
+        assert (cells[span, i - 1 : i + 1] == 100).any(1).all(), f"wall x = {x}"
+    for y in (-5.0, 5.0):
+        j = index(y, y0)
+        assert (cells[j - 1 : j + 1, span] == 100).any(0).all(), f"wall y = {y}"

@@ -58,8 +58,8 @@ def occupancy(world: Any, bounds: tuple[float, float, float, float], resolution:
               ) -> tuple[np.ndarray, float, tuple[float, float]]:
     """The obstacles of a one-env ``World`` as an occupancy grid over ``bounds`` ``(xmin, ymin, xmax, ymax)`` m:
     ``(cells (H, W) int8, 100 occupied / 0 free, row 0 at ymin; resolution m; origin (x, y) m)``. A cell is
-    occupied when an obstacle lies within half a cell of its centre; the resolution grows past
-    ``max_cells`` cells."""
+    occupied when an obstacle touches it (lies within half a cell's diagonal of its centre: a thin wall on
+    a cell boundary marks the cells on both sides); the resolution grows past ``max_cells`` cells."""
     xmin, ymin, xmax, ymax = bounds
     res = max(resolution, math.sqrt((xmax - xmin) * (ymax - ymin) / max_cells))
     w, h = max(1, math.ceil((xmax - xmin) / res)), max(1, math.ceil((ymax - ymin) / res))
@@ -68,7 +68,7 @@ def occupancy(world: Any, bounds: tuple[float, float, float, float], resolution:
     gy, gx = torch.meshgrid(ys, xs, indexing="ij")
     pts = torch.stack((gx.reshape(-1), gy.reshape(-1)), -1)[None].to(world.segments.dtype)
     clear = points_clearance(pts, world)[0].reshape(h, w)
-    return np.where((clear < 0.5 * res).numpy(), 100, 0).astype(np.int8), res, (xmin, ymin)
+    return np.where((clear <= 0.5 * math.sqrt(2.0) * res).numpy(), 100, 0).astype(np.int8), res, (xmin, ymin)
 
 
 def world_bounds(world: Any, points: np.ndarray, margin: float = 0.5) -> tuple[float, float, float, float]:
