@@ -35,8 +35,17 @@ Writes to ``--out`` (default runs/benchmark), after every cell: ``results.json``
 summary, each method's exact config and seed per cell, planner statistics),
 ``results.md`` (cells x methods: success % with its 95% Wilson interval; with two or more
 methods, a second table pairs each with the first on the same episodes: success difference and
-exact McNemar p, from each episode's outcome kept in ``results.json``) and, at the end,
-``heatmap.png`` (methods x cells, success %).
+exact McNemar p, from each episode's outcome kept in ``results.json``; then time to goal over
+the optimal time with the time score, and smoothness) and, at the end, ``heatmap.png``
+(methods x cells, success %).
+
+Time: each episode's optimal time is its shortest collision-free path for the robot's disc
+(``torchnav.evaluation.shortest_episode_paths``: A* at 0.05 m on the episode's obstacles at
+its start, shortcut), less the goal tolerance, at the robot's top speed with no time to turn;
+``time_ratio`` is the successful episodes' steps over their optimal steps (summed), ``time_score``
+the mean over all episodes of ``success * min(1, optimal / actual time)``
+(``torchnav.evaluation.time_efficiency``). Smoothness: ``speed_change`` and ``turn_change``,
+the mean absolute change of the driven speed and turn rate per step.
 """
 
 from __future__ import annotations
@@ -59,7 +68,7 @@ from compare import _pct, evaluate_method, load_methods, method_configs  # noqa:
 
 from torchnav.config import to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, PlannerController  # noqa: E402
-from torchnav.evaluation import eval_config, paired_successes  # noqa: E402
+from torchnav.evaluation import eval_config, paired_successes, shortest_episode_paths  # noqa: E402
 from torchnav.maps import MapError, available_maps, load_map  # noqa: E402
 from torchnav.tasks import NavConfig  # noqa: E402
 from torchnav.worlds import FAMILIES  # noqa: E402
@@ -157,7 +166,27 @@ def markdown(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: in
             s = results[m].get(c.label, "–")
             row.append("n/a" if s is None else s if s == "–" else _pct(s, "success"))
         lines.append(f"| {c.label} | {c.seed} | " + " | ".join(row) + " |")
-    return "\n".join(lines) + "\n" + paired_table(results, cells)
+    time_note = ("Time to goal over the optimal time (the successful episodes' steps over their optimal steps, summed; the optimal "
+                 "time: the episode's shortest path for the robot's disc, A* at 0.05 m, less the goal tolerance, at the top speed "
+                 "with no time to turn) · time score (all episodes: success x min(1, optimal / actual time)).")
+    smooth_note = "Smoothness: mean |change of v| m/s · mean |change of omega| rad/s per step of the driven velocity (all episodes)."
+    return ("\n".join(lines) + "\n" + paired_table(results, cells)
+            + metric_table(results, cells, time_note, lambda s: f"{s['time_ratio']['mean']:.2f}x · {s['time_score']['mean']:.2f}"
+                           if "time_ratio" in s else "–")
+            + metric_table(results, cells, smooth_note, lambda s: f"{s['speed_change']['mean']:.3f} · {s['turn_change']['mean']:.3f}"))
+
+
+def metric_table(results: dict[str, dict[str, Any]], cells: list[Cell], note: str, cell_text) -> str:
+    """A table of cells x methods, each entry ``cell_text(summary)``; n/a where a method does not run, – before it ran."""
+    methods = list(results)
+    lines = ["", note, "", "| cell | " + " | ".join(methods) + " |", "|---|" + "---:|" * len(methods)]
+    for c in cells:
+        row = []
+        for m in methods:
+            s = results[m].get(c.label, "–")
+            row.append("n/a" if s is None else s if s == "–" else cell_text(s).replace("nanx", "–").replace("nan", "–"))
+        lines.append(f"| {c.label} | " + " | ".join(row) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def paired_table(results: dict[str, dict[str, Any]], cells: list[Cell]) -> str:
@@ -227,13 +256,13 @@ def heatmap(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int
 
 
 def document(a: argparse.Namespace, levels: dict[str, float], cells: list[Cell], methods: list, cfgs: dict,
-             results: dict, planning: dict, complete: bool) -> dict[str, Any]:
+             results: dict, planning: dict, reference: dict, complete: bool) -> dict[str, Any]:
     """Everything ``results.json`` holds: options, cells with each method's exact config, summaries."""
     return {
         "complete": complete, "episodes": a.episodes, "seed": a.seed, "levels": levels,
         "checkpoints": a.checkpoints, "methods": [n for n, _, _ in methods],
         "cells": [{**asdict(c), "configs": {n: to_dict(cfg) for n, cfg in cfgs[c.label].items()}} for c in cells],
-        "results": results, "planning": planning,
+        "results": results, "planning": planning, "shortest_paths": reference,
     }
 
 
@@ -295,21 +324,28 @@ def main(argv: list[str]) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     results: dict[str, dict[str, Any]] = {n: {} for n, _, _ in methods}
     planning: dict[str, dict[str, Any]] = {}
+    reference: dict[str, dict[str, Any]] = {}  # per cell: the shortest paths' statistics
     t0 = time.perf_counter()
     for i, c in enumerate(cells):
         what = f"map {c.name}" if c.kind == "map" else f"{c.name} worlds at difficulty {c.difficulty:g}"
         print(f"[{i + 1}/{len(cells)}] {c.label}: {what}, seed {c.seed}, {a.episodes} episodes", flush=True)
+        # every method plays the same episodes (method_configs checked): one shortest path each, for all of them
+        t_ref = time.perf_counter()
+        shortest = shortest_episode_paths(cfgs[c.label][methods[0][0]], a.episodes, seed=c.seed, device=a.device)
+        reference[c.label] = {"seconds": round(time.perf_counter() - t_ref, 2), "no_path": int((~shortest.isfinite()).sum()),
+                              "mean_m": float(shortest[shortest.isfinite()].mean()) if shortest.isfinite().any() else None}
         for name, policy, _ in methods:
             if not runs_on(policy, c):
                 results[name][c.label] = None
                 print(f"[{c.label}] {name:<22} n/a (a planner needs a map's spec)", flush=True)
                 continue
-            results[name][c.label], stats = evaluate_method(name, policy, cfgs[c.label][name], a.episodes, c.seed, a.device, c.label)
+            results[name][c.label], stats = evaluate_method(name, policy, cfgs[c.label][name], a.episodes, c.seed, a.device, c.label,
+                                                            shortest=shortest)
             if stats is not None:
                 planning.setdefault(name, {})[c.label] = stats
         done = time.perf_counter() - t0
         print(f"    {done:.0f} s so far, about {done / (i + 1) * (len(cells) - i - 1):.0f} s to go", flush=True)
-        doc = document(a, levels, cells, methods, cfgs, results, planning, complete=i + 1 == len(cells))
+        doc = document(a, levels, cells, methods, cfgs, results, planning, reference, complete=i + 1 == len(cells))
         (out / "results.json").write_text(json.dumps(doc, indent=2))
         (out / "results.md").write_text(markdown(results, cells, a.episodes))
     print("\n" + markdown(results, cells, a.episodes))

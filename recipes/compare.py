@@ -34,7 +34,8 @@ import builders as B
 from torchnav.config import to_dict
 from torchnav.controllers import CONTROLLERS, make_controller
 from torchnav.envs import NavEnv
-from torchnav.evaluation import FINAL_EVAL_SEED, bind_policy, eval_config, outcome_letter, outcome_letters, run_episodes, summarize
+from torchnav.evaluation import (FINAL_EVAL_SEED, bind_policy, eval_config, outcome_letter, outcome_letters, run_episodes, summarize,
+                                 time_efficiency)
 from torchnav.maps import MapError, load_map
 from torchnav.policy import load_policy
 from torchnav.tasks import NavConfig
@@ -93,21 +94,26 @@ def method_configs(methods: list[tuple[str, Any, NavConfig | None]], base: NavCo
 
 
 def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed: int, device: str,
-                    where: str) -> tuple[dict[str, Any], dict[str, Any] | None]:
-    """``summarize`` of ``episodes`` episodes of ``policy`` on ``cfg`` and, for a planner, its statistics
-    (plans, paths not found, ms per plan); prints one progress line."""
+                    where: str, shortest: torch.Tensor | None = None) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """``summarize`` of ``episodes`` episodes of ``policy`` on ``cfg`` (with ``shortest``, the episodes'
+    shortest paths, also ``time_efficiency``) and, for a planner, its statistics (plans, paths not found,
+    ms per plan); prints one progress line."""
     if hasattr(policy, "stats"):
         policy.stats = {"plans": 0, "no_path": 0, "seconds": 0.0}
     t0 = time.perf_counter()
     res = run_episodes(policy, cfg, episodes, seed=seed, device=device)
     s = summarize(res)
+    timing = ""
+    if shortest is not None:
+        s.update(time_efficiency(res, shortest, cfg))
+        timing = f"time x{_mean(s, 'time_ratio', 2).split(' ')[0]:<6} score {s['time_score']['mean']:.2f}  "
     # each episode's outcome (S success, C collision, T timeout), for paired comparisons of methods
     s["outcomes"] = outcome_letters(res)
     stats = getattr(policy, "stats", None)
     if stats is not None:
         stats = {**stats, "ms_per_plan": 1e3 * stats["seconds"] / max(stats["plans"], 1)}
     print(f"[{where}] {name:<22} success {_pct(s, 'success'):<20} collision {_pct(s, 'collision'):<20} "
-          f"timeout {_pct(s, 'timeout'):<20} steps {_mean(s, 'steps_to_goal', 1):<20} ({time.perf_counter() - t0:.1f} s)", flush=True)
+          f"timeout {_pct(s, 'timeout'):<20} steps {_mean(s, 'steps_to_goal', 1):<20} {timing}({time.perf_counter() - t0:.1f} s)", flush=True)
     return s, stats
 
 

@@ -58,8 +58,21 @@ def test_tiny_suite_writes_table_json_and_heatmap(tmp_path):
     assert set(saved["planning"]["astar"]) == {"arena", "empty"}
     md = (tmp_path / "results.md").read_text()
     assert "| cell | seed | td3_arena_actor | reactive | astar |" in md
-    table, paired = md.split("Paired against td3_arena_actor")
+    table, rest = md.split("Paired against td3_arena_actor")
+    paired, rest = rest.split("Time to goal over the optimal time")
+    timing, smooth = rest.split("Smoothness:")
     assert all(table.count(f"| {c} |") == 1 for c in CELLS) and table.count("| n/a |") == 1
+    # time over the optimal time and smoothness: a row per cell, n/a where the planner did not run
+    for t in (timing, smooth):
+        assert "| cell | td3_arena_actor | reactive | astar |" in t and all(t.count(f"| {c} |") == 1 for c in CELLS) and t.count("n/a") == 1
+    for m in saved["methods"]:
+        for label in CELLS:
+            r = saved["results"][m][label]
+            if r is None:
+                continue
+            assert r["time_score"]["mean"] <= 1 and r["no_reference"] == 0 and r["speed_change"]["mean"] > 0
+            assert r["success"]["count"] == 0 or r["time_ratio"]["mean"] >= 0.5
+    assert set(saved["shortest_paths"]) == set(CELLS) and all(v["no_path"] == 0 for v in saved["shortest_paths"].values())
     # the paired table: a row per cell, a column per other method, n/a where the planner did not run
     assert "| cell | reactive | astar |" in paired and all(paired.count(f"| {c} |") == 1 for c in CELLS)
     assert paired.count("n/a") == 1 and paired.count(", p ") == 5

@@ -12,6 +12,7 @@ import torch
 from torchnav.config import ConfigError
 from torchnav.controllers import (
     CONTROLLERS, Obstacles, OccupancyGrid, RRTParams, TrackerGains, WaypointTracker, drive, make_controller, plan_astar, plan_rrt,
+    shortest_paths,
 )
 from torchnav.envs import make_nav_env
 from torchnav.evaluation import eval_config, run_episodes
@@ -196,3 +197,36 @@ def test_no_path_go_to_goal_fallback_moves(tmp_path):
     _, _, poses = rollout(ctrl, str(p), [[-3.0, -3.0, 0.0]], [[3.0, 3.0]], steps=20)
     assert ctrl.stats["no_path"] == 1
     assert np.hypot(*(poses[0, -1, :2] - torch.tensor([3.0, 3.0])).tolist()) < np.hypot(6.0, 6.0) - 1.0
+
+
+def test_shortest_paths_are_the_straight_line_in_the_open_and_the_tangent_detour_round_a_wall():
+    """A wall x = 0, y in [-1, 1], a disc of 0.2 m from (-1, 0) to (1, 0): around the wall's end the shortest
+    path is two tangents to the inflated end (a circle of 0.2 m at (0, 1)) and the arc between them, 3.171 m."""
+    from torchnav.sim import make_world
+
+    r = 0.2
+    world = make_world(3, segments=[[0.0, -1.0, 0.0, 1.0]], dtype=torch.float64)
+    start = torch.tensor([[-1.0, 0.0], [-1.0, 3.0], [-1.0, 0.0]], dtype=torch.float64)
+    goal = torch.tensor([[1.0, 0.0], [2.0, 3.0], [-0.5, -0.5]], dtype=torch.float64)
+    got = shortest_paths(world, start, goal, r)
+    tangent = math.sqrt(2.0 - r * r)
+    arc = r * (math.pi - 2 * (math.pi / 4 + math.acos(r / math.sqrt(2.0)) - math.pi / 2))  # between the two tangent points
+    assert 1.0 <= got[0] / (2 * tangent + arc) < 1.04, got  # the grid keeps the path up to a cell wider round the end
+    assert got[1] == pytest.approx(3.0, abs=1e-9) and got[2] == pytest.approx(math.hypot(0.5, 0.5), abs=1e-9)  # no wall in the way
+    closed = make_world(1, segments=[[-2.0, -2.0, 2.0, -2.0], [2.0, -2.0, 2.0, 2.0], [2.0, 2.0, -2.0, 2.0], [-2.0, 2.0, -2.0, -2.0],
+                                     [0.0, -2.0, 0.0, 2.0]], dtype=torch.float64)  # a wall across a closed room
+    assert shortest_paths(closed, start[:1], goal[:1], r)[0] == math.inf
+
+
+def test_time_efficiency_counts_time_against_the_shortest_path_at_top_speed():
+    from torchnav.evaluation import time_efficiency
+
+    cfg = NavConfig()  # v_max 1 m/s, 0.1 s a step: 10 steps a metre
+    tol = cfg.goal_tolerance
+    shortest = torch.tensor([2.0, 4.0, 3.0, math.inf], dtype=torch.float64) + tol  # 20, 40 and 30 optimal steps
+    res = {"success": torch.tensor([True, True, False, True]), "length": torch.tensor([30.0, 40.0, 500.0, 10.0])}
+    t = time_efficiency(res, shortest, cfg)
+    assert t["no_reference"] == 1
+    assert t["time_ratio"]["mean"] == pytest.approx(70 / 60)  # the successful episodes with a reference, summed
+    assert t["time_ratio"]["ci95"][0] < 70 / 60 < t["time_ratio"]["ci95"][1]
+    assert t["time_score"]["mean"] == pytest.approx((20 / 30 + 1.0 + 0.0) / 3)

@@ -24,7 +24,7 @@ OUTPUT_KEYS = {
     "observation", "pose", "goal", "ranges", "success", "collision", "curriculum_radius",
     "reward_terms", "episode", "done", "terminated", "truncated",
 }
-EPISODE_KEYS = {"return", "length", "path_length", "straight_line"}
+EPISODE_KEYS = {"return", "length", "path_length", "straight_line", "speed_change", "turn_change"}
 
 
 
@@ -220,6 +220,26 @@ def test_episode_statistics_at_done():
             if e + 1 < r.shape[1]:
                 assert r["episode", "length"][i, e + 1].item() == 0
             begin = e + 1
+
+
+def test_speed_and_turn_change_sum_the_driven_velocity_changes_from_rest():
+    env = make_nav_env("empty", num_envs=3, seed=4, curriculum={"mode": "off"})  # goals anywhere, not a step away
+    td = env.reset()
+    vel = [env.state.sim.vel.clone()]
+    assert vel[0].abs().max() == 0  # every episode starts from rest
+    g = torch.Generator().manual_seed(0)
+    for _ in range(15):
+        td["action"] = torch.rand(3, 2, generator=g) * 2 - 1
+        td = env.step(td)
+        if td["next", "done"].any():  # the next state is a new episode's
+            break
+        vel.append(env.state.sim.vel.clone())
+        td = td["next"]
+    assert len(vel) > 5
+    change = (torch.stack(vel)[1:] - torch.stack(vel)[:-1]).abs().sum(0)
+    assert change.min() > 0
+    torch.testing.assert_close(td["episode", "speed_change"][:, 0], change[:, 0].float())
+    torch.testing.assert_close(td["episode", "turn_change"][:, 0], change[:, 1].float())
 
 
 # --------------------------------------------------------------------------- resets and curriculum

@@ -148,18 +148,19 @@ def run_batched_episodes(
     whose first env plays episode ``first`` (default: ``env.reset()``).
     """
     parts: dict[str, list[torch.Tensor]] = {}
-    done, chunk = 0, 0
     with tqdm(total=n_episodes, unit="ep", desc=progress, disable=progress is None, leave=False, dynamic_ncols=True) as bar:
-        while done < n_episodes:
-            n = min(max_batch, n_episodes - done)
-            env = make_env(n, seed + 7919 * chunk)
+        for first, n, env_seed in batches(n_episodes, max_batch, seed):
+            env = make_env(n, env_seed)
             bind_policy(policy, env)
-            td = env.reset() if reset is None else reset(env, done)
+            td = env.reset() if reset is None else reset(env, first)
             for k, v in _until_ended(policy, env, td, outcome, bar).items():
                 parts.setdefault(k, []).append(v.cpu())
-            done += n
-            chunk += 1
     return {k: torch.cat(v) for k, v in parts.items()}
+
+
+def batches(n_episodes: int, max_batch: int, seed: int) -> list[tuple[int, int, int]]:
+    """The batches of :func:`run_batched_episodes`: ``(first episode, envs, env seed)`` each."""
+    return [(first, min(max_batch, n_episodes - first), seed + 7919 * k) for k, first in enumerate(range(0, n_episodes, max_batch))]
 
 
 def _until_ended(policy, env, td: TensorDictBase, outcome: Outcome, bar) -> dict[str, torch.Tensor]:
@@ -191,6 +192,7 @@ def nav_outcome(nxt: TensorDictBase) -> tuple[torch.Tensor, dict[str, torch.Tens
         "success": flat(nxt["success"]), "collision": flat(nxt["collision"]), "timeout": flat(nxt["truncated"]),
         "length": flat(ep["length"]).float(), "return": flat(ep["return"]).float(),
         "path_length": flat(ep["path_length"]).float(), "straight_line": flat(ep["straight_line"]).float(),
+        "speed_change": flat(ep["speed_change"]).float(), "turn_change": flat(ep["turn_change"]).float(),
     }
 
 
@@ -220,17 +222,69 @@ def run_episodes(
     ``given`` ``(starts (E, 3), goals (E, 2))`` (:func:`load_episodes`) plays those episodes instead
     of sampled ones (``NavEnv.reset_to``; ``n_episodes`` must be ``E``; a map only).
     Returns per-episode tensors: ``success``, ``collision``, ``timeout`` (bool),
-    ``length`` (steps), ``return``, ``path_length`` and ``straight_line`` (m).
+    ``length`` (steps), ``return``, ``path_length`` and ``straight_line`` (m), ``speed_change``
+    (m/s) and ``turn_change`` (rad/s), the sums of the driven velocity's absolute changes per step.
     """
-    reset = None
-    if given is not None:
-        starts, goals = given
-        if len(starts) != n_episodes or len(goals) != n_episodes:
-            raise ValueError(f"run_episodes: {n_episodes} episodes, but {len(starts)} starts and {len(goals)} goals given")
-        NavTask(cfg, 1, device=device).check_places(starts, goals)  # every episode, before any runs
-        reset = lambda env, first: env.reset_to(starts[first : first + env.num_envs], goals[first : first + env.num_envs])  # noqa: E731
     return run_batched_episodes(policy, lambda n, s: NavEnv(cfg, num_envs=n, device=device, seed=s), nav_outcome,
-                                n_episodes, seed, max_batch, progress, reset)
+                                n_episodes, seed, max_batch, progress, _given_reset(cfg, n_episodes, given, device))
+
+
+def _given_reset(cfg: NavConfig, n_episodes: int, given: tuple[torch.Tensor, torch.Tensor] | None, device) -> Callable | None:
+    """The ``reset(env, first)`` of :func:`run_batched_episodes` that plays the ``given`` episodes (None: sampled ones)."""
+    if given is None:
+        return None
+    starts, goals = given
+    if len(starts) != n_episodes or len(goals) != n_episodes:
+        raise ValueError(f"run_episodes: {n_episodes} episodes, but {len(starts)} starts and {len(goals)} goals given")
+    NavTask(cfg, 1, device=device).check_places(starts, goals)  # every episode, before any runs
+    return lambda env, first: env.reset_to(starts[first : first + env.num_envs], goals[first : first + env.num_envs])
+
+
+def shortest_episode_paths(cfg: NavConfig, n_episodes: int, seed: int = 0, device: torch.device | str = "cpu", max_batch: int = 4096,
+                           given: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+    """The shortest collision-free path ``(E,)`` m from start to goal of each episode :func:`run_episodes`
+    plays with these arguments (the same envs and seeds), among the episode's obstacles at its start for
+    the robot's disc (``torchnav.controllers.shortest_paths``: A* at 0.05 m, shortcut; moving obstacles
+    are not counted); ``inf`` where there is none. The reference of :func:`time_efficiency`."""
+    from .controllers import shortest_paths
+
+    reset = _given_reset(cfg, n_episodes, given, device)
+    out = []
+    for first, n, env_seed in batches(n_episodes, max_batch, seed):
+        env = NavEnv(cfg, num_envs=n, device=device, seed=env_seed)
+        env.reset() if reset is None else reset(env, first)
+        s = env.state
+        out.append(torch.as_tensor(shortest_paths(env.task.full_world(s.world), s.start.cpu(), s.goal.cpu(), env.task.params.robot_radius)))
+    return torch.cat(out)
+
+
+def time_efficiency(res: Mapping[str, torch.Tensor], shortest: torch.Tensor, cfg: NavConfig) -> dict[str, Any]:
+    """Time to goal against the optimal time: the shortest path (:func:`shortest_episode_paths`) less
+    the goal tolerance (an episode ends that far from the goal), driven at the robot's top speed
+    (``cfg``'s ``robot.v_max``, ``dt`` a step) with no time to turn. ``time_ratio``: the mean over
+    successful episodes' steps over their optimal steps, summed (so that an episode counts by its
+    length: on a short one the turn at the start outweighs the path), with a delta-method 95%
+    interval; ``time_score``: the mean over all episodes of ``success * min(1, optimal / actual
+    time)`` (1 for a method that reaches every goal as fast as that allows), with a normal 95%
+    interval; ``no_reference``: episodes without a path on the grid, left out of both."""
+    known = shortest.isfinite()
+    optimal = (shortest - cfg.goal_tolerance).clamp(min=0.0) / (cfg.robot.v_max * cfg.sim_params().dt)  # steps
+    steps = res["length"].double()
+    ok = res["success"] & known
+    score = torch.where(res["success"], (optimal / steps.clamp(min=1.0)).clamp(max=1.0), 0.0)[known]
+    m, lo, hi = mean_interval(score)
+    return {"no_reference": int((~known).sum()), "time_ratio": ratio_interval(steps[ok], optimal[ok]), "time_score": {"mean": m, "ci95": [lo, hi]}}
+
+
+def ratio_interval(a: torch.Tensor, b: torch.Tensor, z: float = Z95) -> dict[str, Any]:
+    """``sum(a) / sum(b)`` of paired samples with its delta-method 95% interval (nan when empty)."""
+    n = a.numel()
+    if n == 0 or float(b.sum()) <= 0:
+        return {"mean": float("nan"), "ci95": [float("nan"), float("nan")]}
+    a, b = a.double(), b.double()
+    r = float(a.sum() / b.sum())
+    half = z * float((a - r * b).std()) / (math.sqrt(n) * float(b.mean())) if n > 1 else 0.0
+    return {"mean": r, "ci95": [r - half, r + half]}
 
 
 EPISODE_KEYS = ("start", "goal")
@@ -312,16 +366,21 @@ NAV_OUTCOMES = ("success", "collision", "timeout")
 
 
 def summarize(res: dict[str, torch.Tensor]) -> dict[str, Any]:
-    """Rates with Wilson intervals; mean steps to goal (successful episodes) and path-length
-    ratio (path / straight line, successful episodes) with normal intervals."""
+    """Rates with Wilson intervals; mean steps to goal (successful episodes), path-length ratio
+    (path / straight line, successful episodes), return, and smoothness: ``speed_change`` and
+    ``turn_change``, the mean absolute change of the driven speed (m/s) and turn rate (rad/s) per
+    step (all episodes), with normal intervals."""
     s = res["success"]
     ratio = res["path_length"][s] / res["straight_line"][s].clamp(min=1e-6)
-    return summarize_outcomes(res, NAV_OUTCOMES, {"steps_to_goal": res["length"][s], "path_ratio": ratio, "return": res["return"]})
+    steps = res["length"].clamp(min=1.0)
+    return summarize_outcomes(res, NAV_OUTCOMES, {"steps_to_goal": res["length"][s], "path_ratio": ratio, "return": res["return"],
+                                                  "speed_change": res["speed_change"] / steps, "turn_change": res["turn_change"] / steps})
 
 
 def format_summary(s: dict[str, Any], title: str = "") -> str:
     """A small fixed-width table of ``summarize`` output."""
-    return format_table(s, title, NAV_OUTCOMES, (("steps_to_goal", "steps"), ("path_ratio", "x straight"), ("return", "")))
+    return format_table(s, title, NAV_OUTCOMES, (("steps_to_goal", "steps"), ("path_ratio", "x straight"), ("return", ""),
+                                                 ("speed_change", "m/s/step"), ("turn_change", "rad/s/step")))
 
 
 # -- line following: lap completion from random starts (docs/line.md) --------------------------

@@ -13,7 +13,7 @@ from typing import Any
 from ..config import ConfigError
 from ..tasks import NavConfig
 from .base import Controller
-from .planning import Obstacles, OccupancyGrid, RRTParams, astar_cells, plan_astar, plan_rrt, shortcut
+from .planning import Obstacles, OccupancyGrid, RRTParams, astar_cells, plan_astar, plan_rrt, shortcut, shortest_paths
 from .orca import ORCA, ORCAGains
 from .rollout import drive
 from .reactive import GoToGoal, GoToGoalGains, PotentialField, PotentialFieldGains, Reactive, ReactiveGains
@@ -54,5 +54,5 @@ __all__ = [
     "CONTROLLERS", "MULTI_CONTROLLERS", "make_controller", "Controller", "ORCA", "ORCAGains",
     "GoToGoal", "GoToGoalGains", "Reactive", "ReactiveGains", "PotentialField", "PotentialFieldGains",
     "PlannerController", "AStarController", "RRTController", "PlannerGains", "TrackerGains", "WaypointTracker",
-    "drive", "Obstacles", "OccupancyGrid", "RRTParams", "astar_cells", "plan_astar", "plan_rrt", "shortcut",
+    "drive", "Obstacles", "OccupancyGrid", "RRTParams", "astar_cells", "plan_astar", "plan_rrt", "shortcut", "shortest_paths",
 ]

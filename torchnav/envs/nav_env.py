@@ -82,13 +82,13 @@ class NavEnv(CurriculumPoolState, BatchedEnv):
         self.curriculum = after_family_episodes(self.curriculum, self.cfg.worlds, done, out["success"], self._state.family,
                                                 self._state.difficulty)
 
-    episode_keys = ("return", "length", "path_length", "straight_line")
+    episode_keys = ("return", "length", "path_length", "straight_line", "speed_change", "turn_change")
 
     def _task_outputs(self, s: NavState) -> dict[str, torch.Tensor]:
         return {"goal": s.goal, "curriculum_radius": self.curriculum.radius.expand(*self.batch_size).reshape(*self.batch_size, 1).clone()}
 
     def _episode_stats(self, s: NavState) -> dict[str, torch.Tensor]:
-        return {"path_length": s.ep_path, "straight_line": s.straight}
+        return {"path_length": s.ep_path, "straight_line": s.straight, "speed_change": s.ep_speed_change, "turn_change": s.ep_turn_change}
 
 
 def make_nav_env(map: str = "arena", num_envs: int = 64, device: torch.device | str = "cpu", seed: int | None = 0, **overrides: Any) -> NavEnv:

@@ -174,6 +174,8 @@ class NavTask(BatchedTask):
             world=world, goal=goal, start=start, goal_dist=dist, goal_field=goal_field, goal_frame=goal_frame,
             goal_path=self._progress_distance(goal_field, goal_frame, goal, sim.pose, dist, torch.full_like(dist, math.inf)),
             ep_path=torch.zeros(n, dtype=self.dtype, device=self.device),
+            ep_speed_change=torch.zeros(n, dtype=self.dtype, device=self.device),
+            ep_turn_change=torch.zeros(n, dtype=self.dtype, device=self.device),
             straight=dist.detach().clone(), family=family, difficulty=difficulty, env_params=env_params,
             crumbs=crumbs, crumb_count=crumb_count, **self._episode_start(sim, obs),
         )
@@ -346,6 +348,8 @@ class NavTask(BatchedTask):
             world=state.world, goal=state.goal, start=state.start, goal_dist=dist, goal_field=state.goal_field, goal_frame=state.goal_frame,
             goal_path=goal_path,
             ep_path=state.ep_path + safe_hypot(sim.pose[:, 0] - state.sim.pose[:, 0], sim.pose[:, 1] - state.sim.pose[:, 1]),
+            ep_speed_change=state.ep_speed_change + (sim.vel[:, 0] - state.sim.vel[:, 0]).detach().abs(),
+            ep_turn_change=state.ep_turn_change + (sim.vel[:, 1] - state.sim.vel[:, 1]).detach().abs(),
             straight=state.straight, family=state.family, difficulty=state.difficulty, env_params=state.env_params,
             crumbs=crumbs, crumb_count=crumb_count, **common,
         )
@@ -370,6 +374,8 @@ class NavState(TaskState):
     goal_frame: Tensor  # (B, 3) [x0, y0, cell m] of goal_field
     goal_path: Tensor  # (B,) m, the distance the progress term measures after the last step (goal_dist unless geodesic; inf until known)
     ep_path: Tensor  # (B,) m driven this episode
+    ep_speed_change: Tensor  # (B,) m/s, the sum over this episode's steps of |change of the driven speed| (from rest at the start)
+    ep_turn_change: Tensor  # (B,) rad/s, the same for the driven turn rate
     straight: Tensor  # (B,) m start-goal distance
     family: Tensor  # (B,) int64 index of the episode's world family in cfg.worlds.families (0 without)
     difficulty: Tensor  # (B,) that family's difficulty in [0, 1]
