@@ -35,7 +35,7 @@ def test_defaults_and_partial_sections():
     [
         ({"max_step": 10}, "'max_step'", "did you mean 'max_steps'"),
         ({"curriculum": {"grwth": 0.1}}, "env.curriculum: unknown key 'grwth'", "did you mean 'growth'"),
-        ({"robot": {"v_maximum": 1.0}}, "env.robot: unknown key 'v_maximum'", "valid keys: dt, radius"),
+        ({"robot": {"v_maximum": 1.0}}, "env.robot: unknown key 'v_maximum'", "valid keys: preset, dt, radius"),
         ({"lidar": {"zzz": 1}}, "env.lidar: unknown key 'zzz'", "valid keys"),
     ],
 )
@@ -348,3 +348,29 @@ def test_docs_list_every_config_field_with_its_default():
             assert f"`{listed}`" in DOCS.read_text(), listed
         else:
             assert doc == str(list(value)).replace(" ", "") or doc == str(list(value)), (key, doc, value)
+
+
+def test_robot_presets_fill_the_robot_under_the_keys_given_and_round_trip():
+    from torchnav.envs import make_nav_env
+    from torchnav.tasks.robots import ROBOT_PRESETS
+
+    for name, (values, delay) in ROBOT_PRESETS.items():
+        cfg = NavConfig.from_dict({"robot": {"preset": name}})
+        assert all(getattr(cfg.robot, k) == v for k, v in values.items()), name
+        assert cfg.randomize.delay == ((delay, delay) if delay else None), name
+        assert NavConfig.from_dict(to_dict(cfg)) == cfg  # a saved config builds the same robot again
+        env = make_nav_env("arena", num_envs=2, robot={"preset": name})
+        assert env.task.params.robot_radius == cfg.robot.radius and env.task.delay_steps == delay
+        env.rollout(3)
+    given = NavConfig.from_dict({"robot": {"preset": "jackal", "v_max": 1.5}, "randomize": {"delay": [0, 2]}})
+    assert given.robot.v_max == 1.5 and given.robot.omega_max == 4.0 and given.randomize.delay == (0, 2)
+    assert NavConfig.from_dict({"robot": {"preset": "default"}}) == NavConfig()
+    with pytest.raises(ConfigError, match=r"env.robot.preset='tb3'.*turtlebot3_burger"):
+        NavConfig.from_dict({"robot": {"preset": "tb3"}})
+
+
+def test_a_recipe_override_chooses_a_robot_preset():
+    from torchnav.train_config import load_config
+
+    recipe = load_config("td3_lidar", ["task.robot.preset=turtlebot3_burger"], Path(__file__).resolve().parent.parent / "recipes" / "configs")
+    assert recipe.task.robot.v_max == 0.22 and recipe.task.robot.radius == 0.105 and recipe.task.randomize.delay == (1, 1)

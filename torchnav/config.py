@@ -125,6 +125,9 @@ def _build(cls: type[T], data: Any, where: str, problems: list[str]) -> T | None
     if not isinstance(data, Mapping):
         problems.append(f"{where}: expected a mapping, got {type(data).__name__} {data!r}")
         return None
+    prepare = getattr(cls, "prepare_dict", None)  # a section's own expansion of its data (NavConfig: robot presets)
+    if prepare is not None:
+        data = prepare(data)
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
     found = len(problems)

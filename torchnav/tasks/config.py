@@ -19,6 +19,7 @@ from ..config import (Config, ConfigError, checked, count, is_number, limit, non
 from ..sim import RANDOMIZED, CameraParams, ImuParams, LidarParams, SimParams
 from ..sim.params import INTEGRATORS, SCANS, is_pose
 from ..sim.randomize import check_ranges
+from .robots import ROBOT_PRESETS, with_robot_preset
 
 DEFAULT_MAP = "arena"  # NavConfig.map's default; with worlds.families the map must stay at it (it is not used)
 
@@ -38,6 +39,7 @@ MAX_HISTORY = 64  # observation frames stacked
 
 @dataclass(frozen=True)
 class RobotConfig(Config):
+    preset: str = one_of(*ROBOT_PRESETS, default="default")  # the values this robot started from (torchnav/tasks/robots.py); keys given beside it win
     dt: float = positive(0.1)  # s per step
     radius: float = positive(0.2)  # m, robot disc
     track_width: float = positive(0.3)  # m, wheel separation
@@ -275,6 +277,9 @@ class NavConfig(Config):
             (not w.movers or bool(w.families), "worlds.movers needs worlds.families (a map declares its movers as moving_circles)"),
             raises(lambda: check_ranges(self.randomize.ranges(), self.sim_params())),
         ]
+
+    # from_dict fills in robot.preset's values under the keys the data gives (torchnav/tasks/robots.py)
+    prepare_dict = staticmethod(with_robot_preset)
 
     def sim_params(self) -> SimParams:
         """The simulator's parameters of this task: the robot, its lidar, and the IMU and camera when enabled."""
