@@ -524,6 +524,10 @@ BAD_MAPS = [
     ("size: [20, 20]\nmoving_circles: {count: 65, radius: [0.05, 0.1], speed: [0, 1]}", "moving_circles.count: expected an integer in [0, 64]"),
     ("size: [20, 20]\nrandom_boxes: {count: 40, size_x: [0.1, 0.2], size_y: [0.1, 0.2]}\nrandom_circles: {count: 40, radius: [0.05, 0.1]}",
      "random_boxes.count + random_circles.count = 80; a map re-places at most 64"),
+    # a random object whose circumscribed circle and margins span the world could be placed in no episode
+    ("size: [10, 10]\nrandom_circles: {count: 64, radius: [5, 5]}", "random_circles.radius: the largest circle, 10 m across"),
+    ("size: [10, 10]\nrandom_boxes: {count: 4, size_x: [0.5, 9.9], size_y: [0.1, 0.1]}", "random_boxes.size_x: the largest box, 9.9 m across"),
+    ("size: [10, 10]\nmoving_circles: {count: 2, radius: [0.1, 4.95], speed: [0, 1]}", "moving_circles.radius: the largest moving disc, 9.9 m"),
     ("size: [1.0e39, 1.0e39]", "size: at most 10000 m per side"),
     ("size: [50000, 5]", "size: at most 10000 m per side"),
     ("size: [5, 5]\nsize: [6, 6]", "size: duplicate key at line 2"),

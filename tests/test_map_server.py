@@ -332,7 +332,7 @@ EMBED_BAD = {
     "boundary twice": ("map_server: {yaml: map.yaml}\nwalls: boundary\n", "walls[0]: map_server.boundary (true by default)"),
     "box outside": ("map_server: {yaml: map.yaml}\nboxes: [{center: [1.0, 0], size: [0.2, 0.2]}]\n", "boxes[0]: a corner of the box"),
     "random box too big": ("map_server: {yaml: map.yaml}\nrandom_boxes: {count: 1, size_x: [1.0, 1.0], size_y: [0.1, 0.1]}\n",
-                           "random_boxes.size_x: maximum 1 m does not fit"),
+                           "random_boxes.size_x: the largest box, 1 m across"),
 }
 
 

@@ -229,7 +229,7 @@ BAD_FILES = {
     "negative count": ("size: [10, 10]\nrandom_circles: {count: -1, radius: [0.1, 0.2]}\n", "random_circles.count: expected an integer in [0, 64]"),
     "float count": ("size: [10, 10]\nrandom_circles: {count: 2.5, radius: [0.1, 0.2]}\n", "random_circles.count"),
     "negative margin": ("size: [10, 10]\nrandom_circles: {count: 1, radius: [0.1, 0.2], margin: -0.1}\n", "random_circles.margin"),
-    "random too big": ("size: [10, 10]\nrandom_boxes: {count: 1, size_x: [1, 12], size_y: [1, 1]}\n", "random_boxes.size_x: maximum 12 m"),
+    "random too big": ("size: [10, 10]\nrandom_boxes: {count: 1, size_x: [1, 12], size_y: [1, 1]}\n", "random_boxes.size_x: the largest box, 12 m across"),
     "name not a string": ("name: [a]\nsize: [10, 10]\n", "name: expected a non-empty string"),
     "top level not a mapping": ("- size\n", "expected a mapping"),
     "empty file": ("", "the map file is empty"),

@@ -190,10 +190,12 @@ def _occupancy(ctx: Ctx, v: Any, size: tuple[float, float], base_dir: str | os.P
     return tuple(tuple(b) for b in boxes.tolist())
 
 
-def _fits(ctx: Ctx, key: str, extent: float, size: tuple[float, float]) -> None:
-    # The reset sampler cannot place an object wider than the world; say so now, not at reset.
-    if extent > min(size):
-        raise ctx.fail(key, f"maximum {extent:g} m does not fit in a {size[0]:g} x {size[1]:g} m world")
+def _fits(ctx: Ctx, key: str, extent: float, margin: float, size: tuple[float, float], what: str) -> None:
+    # The reset sampler places an object by its circumscribed circle, keeping `margin` from the world's edge: one
+    # whose circle and margins span the world never finds a place (it would be left out of every episode); say so now.
+    if extent + 2 * margin >= min(size):
+        raise ctx.fail(key, f"the largest {what}, {extent:.3g} m across (the circle the reset sampler places it by) plus "
+                            f"its margin {margin:g} m on each side, does not fit in a {size[0]:g} x {size[1]:g} m world")
 
 
 def _random_boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomBoxes:
@@ -208,8 +210,7 @@ def _random_boxes(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomBoxes:
         clearance=check_number(ctx, v.get("clearance", d["clearance"].default), f"{k}.clearance", "nonneg"),
         margin=check_number(ctx, v.get("margin", d["margin"].default), f"{k}.margin", "nonneg"),
     )
-    _fits(ctx, f"{k}.size_x", rb.size_x[1], size)
-    _fits(ctx, f"{k}.size_y", rb.size_y[1], size)
+    _fits(ctx, f"{k}.size_x", math.hypot(rb.size_x[1], rb.size_y[1]), rb.margin, size, "box")
     return rb
 
 
@@ -223,7 +224,7 @@ def _random_circles(ctx: Ctx, v: Any, size: tuple[float, float]) -> RandomCircle
         clearance=check_number(ctx, v.get("clearance", d["clearance"].default), f"{k}.clearance", "nonneg"),
         margin=check_number(ctx, v.get("margin", d["margin"].default), f"{k}.margin", "nonneg"),
     )
-    _fits(ctx, f"{k}.radius", 2 * rc.radius[1], size)
+    _fits(ctx, f"{k}.radius", 2 * rc.radius[1], rc.margin, size, "circle")
     return rc
 
 
@@ -261,7 +262,7 @@ def random_movers(ctx: Ctx, v: Any, size: tuple[float, float], k: str = "moving_
     if mc.waypoints < 1:
         raise ctx.fail(f"{k}.waypoints", f"expected an integer in [1, 64], got {show(mc.waypoints)}")
     w, h = (region[2] - region[0], region[3] - region[1]) if region else size
-    _fits(ctx, f"{k}.size_x and size_y" if boxes else f"{k}.radius", 2 * mc.radius[1], (w, h))
+    _fits(ctx, f"{k}.size_x and size_y" if boxes else f"{k}.radius", 2 * mc.radius[1], mc.margin, (w, h), "moving " + ("box" if boxes else "disc"))
     return mc
 
 
