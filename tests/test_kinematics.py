@@ -269,3 +269,35 @@ def test_forward_speed_guard_takes_the_worst_bearing_in_each_sector():
                 assert math.isinf(got), (k, r)
             else:
                 assert got.item() == pytest.approx(want.item(), abs=1e-9), (k, r)
+
+
+def test_forward_speed_guard_leaves_room_to_brake_through_the_delay():
+    """With a deceleration and an actuator delay the capped speed, driven for 1 + delay steps and then
+    braked, stops exactly at the free distance; with neither it is the one-step bound."""
+    from torchnav.sim.kinematics import forward_speed_guard
+
+    lidar = _guard_scan("rays", 4)
+    ranges = torch.tensor([[10.0, 10.0, 1.25, 10.0], [10.0, 10.0, 10.0, 10.0]], dtype=F64)  # 1 m free ahead, nothing
+    free, dt = 1.0, 0.1
+    for decel, delay in ((1.0, 0), (1.0, 2), (3.0, 1), (math.inf, 2)):
+        v = forward_speed_guard(ranges, lidar, 0.2, 0.05, dt, decel=decel, delay=delay)
+        stop = v[0] * (1 + delay) * dt + (v[0] ** 2 / (2 * decel) if math.isfinite(decel) else 0.0)
+        assert stop.item() == pytest.approx(free, rel=1e-12) and math.isinf(v[1]), (decel, delay)
+    slow = forward_speed_guard(ranges, lidar, 0.2, 0.05, dt, decel=1.0, delay=1)[0]
+    assert slow < forward_speed_guard(ranges, lidar, 0.2, 0.05, dt)[0] / 2  # braking takes room
+
+
+def test_the_guarded_robot_with_bounded_braking_stops_short_of_a_wall():
+    """Full speed at a wall with 1 m/s^2 and a one-step delay: the guard that plans the stop keeps the robot
+    off the wall (planned as an instant stop, it hit it)."""
+    from torchnav.envs import make_nav_env
+
+    env = make_nav_env("empty", num_envs=1, seed=0, robot={"lin_acc_max": 1.0}, randomize={"delay": [1, 1]},
+                       action={"stop_clearance": 0.05}, max_steps=200)
+    td = env.reset_to(torch.tensor([[0.0, 0.0, 0.0]]), torch.tensor([[-3.0, 3.0]]))  # facing the wall at x = 5, the goal behind
+    for _ in range(150):
+        td["action"] = torch.tensor([[1.0, 0.0]])
+        td = env.step(td)
+        assert not td["next", "collision"].any()
+        td = td["next"]
+    assert 4.0 < env.state.sim.pose[0, 0].item() < 5.0 - 0.2  # drove up to the wall and stopped short of it

@@ -154,11 +154,21 @@ def command(cfg: "NavConfig", action: Tensor, twists: Tensor, dtype: torch.dtype
 def guarded(cfg: "NavConfig", twist: Tensor, ranges: Tensor, lidar: LidarParams, radius: Tensor | float, dt: float,
             bearings: Tensor | None) -> Tensor:
     """``twist`` ``(B, 2)`` with its forward speed capped by the speed guard (``action.stop_clearance``;
-    ``forward_speed_guard`` on the scan ``ranges`` ``(B, R)`` the policy saw); unchanged when the guard is off."""
+    ``forward_speed_guard`` on the scan ``ranges`` ``(B, R)`` the policy saw, braking and delay from
+    :func:`guard_dynamics`); unchanged when the guard is off."""
     if cfg.action.stop_clearance is None:
         return twist
-    cap = forward_speed_guard(ranges, lidar, radius, cfg.action.stop_clearance, dt, bearings)
+    decel, delay = guard_dynamics(cfg)
+    cap = forward_speed_guard(ranges, lidar, radius, cfg.action.stop_clearance, dt, bearings, decel=decel, delay=delay)
     return torch.stack((torch.minimum(twist[:, 0], cap), twist[:, 1]), dim=-1)
+
+
+def guard_dynamics(cfg: "NavConfig") -> tuple[float, int]:
+    """The deceleration (m/s^2) and actuator delay (steps) the speed guard plans its stop with: the
+    robot's, or the worst its domain randomisation draws (the lowest ``lin_acc_max``, the longest delay)."""
+    r = cfg.randomize
+    decel = min(cfg.robot.lin_acc_max, r.lin_acc_max[0]) if r.lin_acc_max is not None else cfg.robot.lin_acc_max
+    return decel, int(r.delay[1]) if r.delay is not None else 0
 
 
 # -- a real scan in the simulator's layout ------------------------------------------------------------------

@@ -104,12 +104,17 @@ def guard_bearings(lidar: LidarParams, dtype: torch.dtype = torch.float32, devic
 
 
 def forward_speed_guard(ranges: Tensor, lidar: LidarParams, radius: Tensor | float, clearance: float, dt: float,
-                        bearings: Tensor | None = None) -> Tensor:
+                        bearings: Tensor | None = None, decel: float = math.inf, delay: int = 0) -> Tensor:
     """The highest forward speed ``(B,)`` m/s at which a robot disc of ``radius`` m, driving straight
     for ``dt`` s, stays ``clearance`` m short of every return of its last scan ``ranges``
     ``(B, R)`` (``lidar``'s layout) ahead of its centre and nearer its path than ``radius + clearance``;
     ``inf`` where none is (misses, at ``lidar.max_range``, are none). A return already that near
     and ahead stops it: the robot turns away first (turning on the spot moves no part of the disc).
+
+    With a finite deceleration ``decel`` m/s^2 and an actuator ``delay`` of whole steps, the robot
+    must also be able to stop in the free distance ``f``: the speed ``v`` driven for the ``1 + delay``
+    steps before a stop takes effect, then braking, ``v (1 + delay) dt + v^2 / (2 decel) <= f``
+    (``f / dt`` with neither).
 
     A return of the exact sector scan lies somewhere in its sector: the bound takes the bearing
     in the sector nearest straight ahead, the worst case (the distance the disc can drive before
@@ -123,4 +128,9 @@ def forward_speed_guard(ranges: Tensor, lidar: LidarParams, radius: Tensor | flo
     reach = torch.as_tensor(radius, dtype=ranges.dtype, device=ranges.device).reshape(-1, 1) + clearance
     blocks = (x > 0) & (y < reach) & (ranges < lidar.max_range)  # a miss reads max_range
     free = torch.where(blocks, x - torch.sqrt((reach * reach - y * y).clamp(min=0.0)), torch.full_like(ranges, math.inf))
-    return free.amin(-1).clamp(min=0.0) / dt
+    f = free.amin(-1).clamp(min=0.0)
+    t = (1 + delay) * dt  # s driven at the commanded speed before braking can start
+    if not math.isfinite(decel):
+        return f / t
+    # the positive root of v^2 / (2 decel) + v t - f = 0, written to stay exact for small f (and inf for f = inf)
+    return torch.where(f.isinf(), f, 2 * f / (t + torch.sqrt(t * t + 2 * f / decel)))
