@@ -5,6 +5,7 @@ difficulties, the same seeded episodes for any checkpoints and the classical con
     python recipes/benchmark.py CKPT_A CKPT_B --episodes 50 --out runs/bench
     python recipes/benchmark.py --maps arena maze --families forest --levels easy=0.2 hard=0.8 --controllers reactive astar
     python recipes/benchmark.py CKPT --map-file examples/maps/lab.yaml --map-file my_maps/office.yaml
+    python recipes/benchmark.py CKPT --controllers reactive --perturb          # and under every perturbation
 
 Cells: each map of ``--maps`` (default every shipped map; goals anywhere, curriculum
 off), each map file of ``--map-file`` (repeatable: a torchnav or ROS map_server YAML,
@@ -46,6 +47,12 @@ its start, shortcut), less the goal tolerance, at the robot's top speed with no 
 the mean over all episodes of ``success * min(1, optimal / actual time)``
 (``torchnav.evaluation.time_efficiency``). Smoothness: ``speed_change`` and ``turn_change``,
 the mean absolute change of the driven speed and turn rate per step.
+
+Robustness: ``--perturb NAME ...`` (none given: all) also plays every method on every cell
+under each perturbation of ``torchnav.evaluation.PERTURBATIONS`` (3 cm lidar noise, odometry
+noise, 5% lidar dropout, a one-step actuator delay, 1 m/s^2 and 3 rad/s^2 acceleration limits),
+with the cell's seed (the draws of a randomised setting change the episodes, the same for every
+method); ``results.md`` ends with a table per method of success / collision % under each.
 """
 
 from __future__ import annotations
@@ -68,7 +75,7 @@ from compare import _pct, evaluate_method, load_methods, method_configs  # noqa:
 
 from torchnav.config import to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, PlannerController  # noqa: E402
-from torchnav.evaluation import eval_config, paired_successes, shortest_episode_paths  # noqa: E402
+from torchnav.evaluation import PERTURBATIONS, eval_config, paired_successes, perturbed, shortest_episode_paths  # noqa: E402
 from torchnav.maps import MapError, available_maps, load_map  # noqa: E402
 from torchnav.tasks import NavConfig  # noqa: E402
 from torchnav.worlds import FAMILIES  # noqa: E402
@@ -176,6 +183,26 @@ def markdown(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: in
             + metric_table(results, cells, smooth_note, lambda s: f"{s['speed_change']['mean']:.3f} · {s['turn_change']['mean']:.3f}"))
 
 
+def robustness_tables(results: dict[str, dict[str, Any]], robustness: dict[str, dict[str, dict[str, Any]]], cells: list[Cell]) -> str:
+    """With ``--perturb``, one table per method: cells x (none and each perturbation), success % / collision %."""
+    if not robustness:
+        return ""
+    perts = list(robustness)
+    out = []
+    for m in results:
+        lines = ["", f"Robustness of {m}: success % / collision % unperturbed and under each perturbation "
+                     "(results.json \"perturbations\" holds their settings).", "",
+                 "| cell | none | " + " | ".join(perts) + " |", "|---|" + "---:|" * (len(perts) + 1)]
+        for c in cells:
+            base = results[m].get(c.label, "–")
+            row = []
+            for s in [base] + [robustness[p].get(m, {}).get(c.label, "–") for p in perts]:
+                row.append("n/a" if base is None else s if s == "–" else f"{100 * s['success']['rate']:.1f} / {100 * s['collision']['rate']:.1f}")
+            lines.append(f"| {c.label} | " + " | ".join(row) + " |")
+        out.append("\n".join(lines) + "\n")
+    return "".join(out)
+
+
 def metric_table(results: dict[str, dict[str, Any]], cells: list[Cell], note: str, cell_text) -> str:
     """A table of cells x methods, each entry ``cell_text(summary)``; n/a where a method does not run, – before it ran."""
     methods = list(results)
@@ -256,13 +283,14 @@ def heatmap(results: dict[str, dict[str, Any]], cells: list[Cell], episodes: int
 
 
 def document(a: argparse.Namespace, levels: dict[str, float], cells: list[Cell], methods: list, cfgs: dict,
-             results: dict, planning: dict, reference: dict, complete: bool) -> dict[str, Any]:
+             results: dict, planning: dict, reference: dict, robustness: dict, complete: bool) -> dict[str, Any]:
     """Everything ``results.json`` holds: options, cells with each method's exact config, summaries."""
     return {
         "complete": complete, "episodes": a.episodes, "seed": a.seed, "levels": levels,
         "checkpoints": a.checkpoints, "methods": [n for n, _, _ in methods],
         "cells": [{**asdict(c), "configs": {n: to_dict(cfg) for n, cfg in cfgs[c.label].items()}} for c in cells],
         "results": results, "planning": planning, "shortest_paths": reference,
+        "perturbations": {k: PERTURBATIONS[k] for k in robustness}, "robustness": robustness,
     }
 
 
@@ -278,6 +306,8 @@ def main(argv: list[str]) -> dict[str, Any]:
                    help=f"controllers (default {' '.join(DEFAULT_CONTROLLERS)}; any of {' '.join(CONTROLLERS)}; none: --controllers)")
     p.add_argument("--episodes", type=int, default=DEFAULT_EPISODES, help=f"episodes per method and cell (default {DEFAULT_EPISODES})")
     p.add_argument("--seed", type=int, default=SEED_BASE, help=f"seed of the first cell (default {SEED_BASE}); cell i adds {SEED_STRIDE} * i")
+    p.add_argument("--perturb", nargs="*", default=None, metavar="NAME",
+                   help=f"also play every cell under each perturbation (none given: all of {' '.join(PERTURBATIONS)})")
     p.add_argument("--out", default="runs/benchmark", help="output directory (default runs/benchmark)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--threads", type=B.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
@@ -315,6 +345,10 @@ def main(argv: list[str]) -> dict[str, Any]:
         p.error(f"a cell is given twice: {' '.join(c.label for c in cells)}")
     if not a.checkpoints and not a.controllers:
         p.error("nothing to benchmark: give checkpoints or --controllers")
+    perturbations = [] if a.perturb is None else list(a.perturb or PERTURBATIONS)
+    for name in perturbations:
+        if name not in PERTURBATIONS:
+            p.error(f"--perturb: unknown perturbation {name!r}; known: {', '.join(PERTURBATIONS)}")
     B.ThreadGovernor(a.threads)
     methods, base = load_methods(a.checkpoints, a.controllers)
     # Every cell's configs (and the scenario check of each checkpoint) before any episode runs.
@@ -325,6 +359,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     results: dict[str, dict[str, Any]] = {n: {} for n, _, _ in methods}
     planning: dict[str, dict[str, Any]] = {}
     reference: dict[str, dict[str, Any]] = {}  # per cell: the shortest paths' statistics
+    robustness: dict[str, dict[str, dict[str, Any]]] = {}  # perturbation -> method -> cell -> summary
     t0 = time.perf_counter()
     for i, c in enumerate(cells):
         what = f"map {c.name}" if c.kind == "map" else f"{c.name} worlds at difficulty {c.difficulty:g}"
@@ -343,12 +378,15 @@ def main(argv: list[str]) -> dict[str, Any]:
                                                             shortest=shortest)
             if stats is not None:
                 planning.setdefault(name, {})[c.label] = stats
+            for pert in perturbations:  # the same method under each perturbation (their own episodes: randomisation draws)
+                s, _ = evaluate_method(f"{name} [{pert}]", policy, perturbed(cfgs[c.label][name], pert), a.episodes, c.seed, a.device, c.label)
+                robustness.setdefault(pert, {}).setdefault(name, {})[c.label] = s
         done = time.perf_counter() - t0
         print(f"    {done:.0f} s so far, about {done / (i + 1) * (len(cells) - i - 1):.0f} s to go", flush=True)
-        doc = document(a, levels, cells, methods, cfgs, results, planning, reference, complete=i + 1 == len(cells))
+        doc = document(a, levels, cells, methods, cfgs, results, planning, reference, robustness, complete=i + 1 == len(cells))
         (out / "results.json").write_text(json.dumps(doc, indent=2))
-        (out / "results.md").write_text(markdown(results, cells, a.episodes))
-    print("\n" + markdown(results, cells, a.episodes))
+        (out / "results.md").write_text(markdown(results, cells, a.episodes) + robustness_tables(results, robustness, cells))
+    print("\n" + markdown(results, cells, a.episodes) + robustness_tables(results, robustness, cells))
     heatmap(results, cells, a.episodes, a.seed).savefig(out / "heatmap.png", dpi=110)
     print(f"wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'heatmap.png'}")
     return doc

@@ -145,6 +145,7 @@ def test_eval_config_replaces_worlds_and_maps_turn_them_off():
     (["--maps", "nowhere"], "unknown map 'nowhere'"),
     (["--families", "jungle"], "unknown family 'jungle'"),
     (["--controllers", "astr"], "unknown controller 'astr'"),
+    (["--controllers", "reactive", "--perturb", "wind"], "--perturb: unknown perturbation 'wind'"),
     (["--levels", "hard"], "expected NAME=DIFFICULTY"),
     (["--levels", "hard=x"], "is not a number"),
     (["--levels", "hard=1.5"], "must be in [0, 1]"),
@@ -304,3 +305,21 @@ def test_failure_paths_gap_probe_pins_starts_and_goals():
     for argv in ([str(ckpt), "--probe"], [str(ckpt), "--map", "warehouse", "--probe", "--episodes", "5"]):
         with pytest.raises(SystemExit):  # the probe is warehouse's and plays its own 168 episodes
             failure_paths.main(argv)
+
+
+def test_perturb_plays_each_method_under_each_perturbation(tmp_path):
+    from torchnav.evaluation import PERTURBATIONS, perturbed
+    from torchnav.tasks import NavConfig
+
+    doc = benchmark.main(["--maps", "arena", "--families", "rooms", "--levels", "easy=0.2", "--controllers", "reactive", "astar",
+                          "--episodes", "3", "--perturb", "delay", "acceleration", "--out", str(tmp_path)])
+    assert set(doc["robustness"]) == {"delay", "acceleration"} and doc["perturbations"]["delay"] == PERTURBATIONS["delay"]
+    assert set(doc["robustness"]["delay"]["reactive"]) == {"arena", "rooms/easy"}
+    assert set(doc["robustness"]["delay"]["astar"]) == {"arena"}  # the planner runs on map cells only
+    md = (tmp_path / "results.md").read_text()
+    assert "Robustness of reactive" in md and "| cell | none | delay | acceleration |" in md
+    assert md.split("Robustness of astar")[1].count("| n/a | n/a | n/a |") == 1
+    cfg = perturbed(NavConfig(), "acceleration")
+    assert (cfg.robot.lin_acc_max, cfg.robot.ang_acc_max) == (1.0, 3.0) and perturbed(NavConfig(), "delay").randomize.delay == (1, 1)
+    with pytest.raises(ValueError, match="unknown perturbation 'wind'"):
+        perturbed(NavConfig(), "wind")

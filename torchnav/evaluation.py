@@ -362,6 +362,24 @@ def format_table(s: dict[str, Any], title: str, outcomes: Sequence[str], means: 
     return "\n".join(rows)
 
 
+# The robustness perturbations of recipes/benchmark.py --perturb: config overrides of a navigation task, each one
+# departure of the robot from the simulator's ideal (docs/results.md, "Benchmark suite").
+PERTURBATIONS: dict[str, dict[str, Any]] = {
+    "lidar_noise": {"lidar": {"noise_std": 0.03}},  # 3 cm Gaussian range noise
+    "odom_noise": {"robot": {"odom_v_noise": 0.05, "odom_omega_noise": 0.05}},  # per-step std, m/s and rad/s
+    "dropout": {"randomize": {"dropout": [0.05, 0.05]}},  # 5% of the rays read max_range
+    "delay": {"randomize": {"delay": [1, 1]}},  # a one-step actuator delay
+    "acceleration": {"robot": {"lin_acc_max": 1.0, "ang_acc_max": 3.0}},  # m/s^2 and rad/s^2
+}
+
+
+def perturbed(cfg: NavConfig, name: str) -> NavConfig:
+    """``cfg`` with the robustness perturbation ``name`` of :data:`PERTURBATIONS` applied."""
+    if name not in PERTURBATIONS:
+        raise ValueError(f"unknown perturbation {name!r}; known: {', '.join(PERTURBATIONS)}")
+    return type(cfg).from_dict(merge(to_dict(cfg), PERTURBATIONS[name]))
+
+
 NAV_OUTCOMES = ("success", "collision", "timeout")
 
 
