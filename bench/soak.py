@@ -258,7 +258,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     common.set_threads(a.threads)
     dyn = torch._dynamo.config
     dyn.recompile_limit = max(dyn.recompile_limit, 4 * len(todo))  # every cell's step stays compiled across the rounds
-    per_visit = int(a.steps) // (a.rounds * len(todo))
+    # The budget goes to the cells with a simulator phase (a multi-robot visit plays only its env share, on top), each
+    # visit rounded up to whole batched steps: the run does at least --steps env-steps.
+    stepped = sum(1 for _, kind, _ in todo if kind != "multi") or len(todo)
+    per_visit = -(-int(a.steps) // (a.rounds * stepped))
     g = torch.Generator().manual_seed(a.seed)
     stats = {name: {"counts": Counts(), "env_steps": 0, "rates": [], "rss_mb": []} for name, _, _ in todo}
     rss_rounds, t_start = [], time.perf_counter()
@@ -270,7 +273,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             c = s["counts"]
             try:
                 env = build(kind, overrides, a.num_envs, a.seed + r, a.compile)
-                batched = per_visit // env.num_envs
+                batched = -(-per_visit // env.num_envs)
                 through_env = max(1, int(batched * a.env_share))
                 s["env_steps"] += env_phase(env, kind, through_env, a.window, c, g, s["rates"])
                 if kind != "multi":
