@@ -306,7 +306,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         for e in row["errors"][:3]:
             print(f"    {e}")
     total = {k: sum(r[k] for r in rows) for k in ("env_steps", "nan", "inf_unexpected", "out_of_bounds", "tunnelled", "bad_actions_refused", "silent")}
-    summary = {"bench": "soak", **total, "errors": sum(len(r["errors"]) for r in rows), "cells": rows, "rounds": a.rounds, "num_envs": a.num_envs,
+    summary = {"bench": "soak", "steps_requested": int(a.steps), **total, "errors": sum(len(r["errors"]) for r in rows), "cells": rows, "rounds": a.rounds, "num_envs": a.num_envs,
                "compiled": a.compile, "compiled_graphs": int(counters["stats"]["unique_graphs"]), "threads": a.threads, "wall_s": round(time.perf_counter() - t_start, 1),
                "rss_mb_per_round": [round(x, 1) for x in rss_rounds],
                "rss_growth_mb": round(rss_rounds[-1] - rss_rounds[0], 1) if len(rss_rounds) > 1 else 0.0, **common.machine_info("cpu")}
