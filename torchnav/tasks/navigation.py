@@ -81,6 +81,7 @@ class NavTask(BatchedTask):
         guarded = cfg.action.stop_clearance is not None
         self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device) if guarded else None
         self._sim_step = sim_step
+        self._fixed_rows: dict = {}  # full_world's cache: (device, dtype) -> the map's fixed rows of one env
 
     def full_world(self, world: World) -> World:
         """``world`` (some envs' ``NavState.world``) with the map's fixed obstacles as its first slots, as
@@ -88,11 +89,17 @@ class NavTask(BatchedTask):
         every obstacle. ``world`` itself when the map is not shared."""
         if self.static is None:
             return world
-        fixed = self.spec.build_world(world.batch_size[0], device=world.device, dtype=world.boxes.dtype)
-        nc, nb = self.spec.n_fixed_circles, self.spec.n_fixed_boxes
-        return world.replace(segments=fixed.segments, segment_mask=fixed.segment_mask,
-                             circles=torch.cat((fixed.circles[:, :nc], world.circles), 1), circle_mask=torch.cat((fixed.circle_mask[:, :nc], world.circle_mask), 1),
-                             boxes=torch.cat((fixed.boxes[:, :nb], world.boxes), 1), box_mask=torch.cat((fixed.box_mask[:, :nb], world.box_mask), 1))
+        key = (world.device, world.boxes.dtype)
+        if key not in self._fixed_rows:  # the map's fixed obstacles of one env, built once (recorders call this every step)
+            one = self.spec.build_world(1, device=world.device, dtype=world.boxes.dtype)
+            nc, nb = self.spec.n_fixed_circles, self.spec.n_fixed_boxes
+            self._fixed_rows[key] = (one.segments, one.segment_mask, one.circles[:, :nc], one.circle_mask[:, :nc], one.boxes[:, :nb], one.box_mask[:, :nb])
+        seg, seg_mask, circ, circ_mask, box, box_mask = self._fixed_rows[key]
+        b = world.batch_size[0]
+        rows = lambda t: t.expand(b, *t.shape[1:])  # noqa: E731
+        return world.replace(segments=rows(seg).clone(), segment_mask=rows(seg_mask).clone(),
+                             circles=torch.cat((rows(circ), world.circles), 1), circle_mask=torch.cat((rows(circ_mask), world.circle_mask), 1),
+                             boxes=torch.cat((rows(box), world.boxes), 1), box_mask=torch.cat((rows(box_mask), world.box_mask), 1))
 
     def compile_step(self) -> None:
         """Run the simulator step through ``torch.compile`` from now on (same results; the first
