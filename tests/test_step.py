@@ -142,6 +142,24 @@ def test_non_finite_actions_stop_and_keep_state_finite():
     assert torch.equal(new.pose[1:, :2], state.pose[1:, :2])  # stopped
 
 
+def test_a_non_finite_command_waits_in_the_delay_queue_as_a_stop():
+    """With an actuator delay the command of two steps ago is applied: a NaN one is a stop when it comes due, and the
+    queue holding it stays finite (the 1e9-step soak found NaN there)."""
+    from torchnav.sim.randomize import nominal_env_params
+
+    world = make_world(2)
+    params = sim_params()
+    ep = nominal_env_params(params, 2, torch.zeros(2))
+    ep = ep.replace(delay=torch.tensor([2, 2]))
+    state = init_state(torch.zeros(2, 3), world, params, env_params=ep, delay_steps=2)
+    go = torch.tensor([[0.3, 0.0], [0.3, 0.0]])
+    for a in (go, torch.tensor([[math.nan, math.nan], [0.3, 0.0]]), go, go):
+        state = step(state, a, world, params, env_params=ep)
+        assert torch.isfinite(state.cmd_queue).all()
+    # the 4th step applies the 2nd command: env 0's NaN, a stop; env 1 drives on
+    torch.testing.assert_close(state.vel, torch.tensor([[0.0, 0.0], [0.3, 0.0]]))
+
+
 def test_wheel_speed_actions():
     params = sim_params(track_width=0.4)
     world = make_world(2, segments=[[3.0, -3.0, 3.0, 3.0]], dtype=F64)

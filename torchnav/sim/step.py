@@ -88,6 +88,7 @@ def _drive(state: SimState, action: Tensor, params: SimParams, wheel_speeds: boo
     their pose and odometry stay as they were (random draws are made for them all the same, so the
     other rows' noise does not depend on which are frozen)."""
     cmd = wheels_to_unicycle(action, params.track_width) if wheel_speeds else action
+    cmd = torch.where(torch.isfinite(cmd), cmd, 0.0)  # a non-finite command is a stop, before it waits in the delay queue
     if frozen is not None:
         cmd = torch.where(frozen[:, None], 0.0, cmd)
     queue = state.cmd_queue
