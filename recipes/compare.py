@@ -106,7 +106,7 @@ def evaluate_method(name: str, policy: Any, cfg: NavConfig, episodes: int, seed:
     timing = ""
     if shortest is not None:
         s.update(time_efficiency(res, shortest, cfg))
-        timing = f"time x{_mean(s, 'time_ratio', 2).split(' ')[0]:<6} score {s['time_score']['mean']:.2f}  "
+        timing = f"time x{s['time_ratio']['mean']:<6.2f} score {s['time_score']['mean']:.2f}  "
     # each episode's outcome (S success, C collision, T timeout), for paired comparisons of methods
     s["outcomes"] = outcome_letters(res)
     stats = getattr(policy, "stats", None)

@@ -88,11 +88,11 @@ def _drive(state: SimState, action: Tensor, params: SimParams, wheel_speeds: boo
     their pose and odometry stay as they were (random draws are made for them all the same, so the
     other rows' noise does not depend on which are frozen)."""
     cmd = wheels_to_unicycle(action, params.track_width) if wheel_speeds else action
-    cmd = torch.where(torch.isfinite(cmd), cmd, 0.0)  # a non-finite command is a stop, before it waits in the delay queue
     if frozen is not None:
         cmd = torch.where(frozen[:, None], 0.0, cmd)
     queue = state.cmd_queue
     if queue.shape[1]:  # actuator delay: apply the command of `delay` steps ago
+        cmd = torch.where(torch.isfinite(cmd), cmd, 0.0)  # a non-finite command waits in the queue as the stop it is (apply_limits)
         full = torch.cat((cmd[:, None], queue), 1)  # (B, K + 1, 2), newest first
         delay = env_params.delay.clamp(0, queue.shape[1]) if env_params is not None else torch.zeros_like(cmd[:, 0], dtype=torch.int64)
         cmd, queue = full.gather(1, delay[:, None, None].expand(-1, 1, 2)).squeeze(1), full[:, :-1]
