@@ -229,6 +229,21 @@ def test_replay_prints_summary_and_writes_gif(recorded, tmp_path, capsys):
         assert im.format == "GIF" and im.n_frames > 1
 
 
+def test_replay_draws_every_episode_path_to_png(recorded, tmp_path, capsys):
+    _, path, _ = recorded
+    rec = read_recording(path)
+    out = tmp_path / "paths.png"
+    assert replay_main([str(path), "--out", str(out), "--dpi", "40"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    from PIL import Image
+
+    with Image.open(out) as im:  # one panel per episode, four to a row
+        rows = -(-len(rec.episodes()) // 4)
+        assert im.format == "PNG" and im.width > im.height / rows
+    assert replay_main([str(path), "--out", str(tmp_path / "paths.jpg")]) == 2  # refused before the file is read
+    assert "unknown format '.jpg'" in capsys.readouterr().err
+
+
 def test_render_batch_trajectories_and_learning_curves(recorded, tmp_path):
     from torchnav.render import plot_env, plot_learning_curves, plot_trajectories, read_scalars
 

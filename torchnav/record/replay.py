@@ -1,6 +1,6 @@
-"""Summarise a recording and render an episode to GIF or MP4, without Foxglove.
+"""Summarise a recording, render an episode to GIF or MP4, or draw every episode's path to PNG, without Foxglove.
 
-``python -m torchnav.record.replay FILE.mcap [--env 0 --episode 2 --out ep.gif|ep.mp4]``
+``python -m torchnav.record.replay FILE.mcap [--env 0 --episode 2 --out ep.gif|ep.mp4] [--out paths.png]``
 (MP4 needs ffmpeg; docs/foxglove.md). Navigation episodes show the obstacles, robot, rays, goal
 and trail beside the rewards (several robots per env: every robot, its goal, rays and trail in its
 colour, and the table lists each robot's outcome); line-following ones the track on a dark floor
@@ -258,10 +258,57 @@ def render_episode(rec: Recording, ep: Episode, out: str | Path, fps: float = 10
     return out
 
 
+def plot_episodes(rec: Recording, out: str | Path, episodes: Sequence[Episode] | None = None, ncols: int = 4, dpi: int = 100) -> Path:
+    """A PNG of whole episodes side by side (default: every episode of ``rec``): each panel shows the episode's
+    obstacles (and track), goal and the path driven, start marked with a circle and end with a cross, titled with
+    its outcome and length; several robots per env: every robot's path and goal in its colour."""
+    from matplotlib.figure import Figure
+
+    from ..render import draw_goal, draw_obstacles
+    from .scene import ROBOT_PALETTE
+
+    eps = [e for e in (rec.episodes() if episodes is None else episodes)]
+    if not eps:
+        raise ValueError(f"{rec.path} has no episodes to draw")
+    out = Path(out)
+    if out.suffix.lower() != ".png":
+        raise ValueError(f"a picture of episodes is a .png, got {out.name!r}")
+    tol = float(rec.info.get("goal_tolerance", 0.3))
+    ncols = min(ncols, len(eps))
+    nrows = -(-len(eps) // ncols)
+    fig = Figure(figsize=(3.2 * ncols, 3.3 * nrows), dpi=dpi)
+    for k, ep in enumerate(eps):
+        ax = fig.add_subplot(nrows, ncols, k + 1)
+        robots = [r["robot"] for r in ep.robots] if ep.robots is not None else [None]
+        colors = ["tab:blue"] if robots == [None] else [ROBOT_PALETTE[j % len(ROBOT_PALETTE)] for j in robots]
+        world = ep.start["world"]
+        for t in scene_lines(rec, ep).values():
+            for x0, y0, x1, y1 in t["segments"]:
+                ax.plot([x0, x1], [y0, y1], "-", color=t["color"][:3], lw=2, alpha=0.6, zorder=1)
+        draw_obstacles(ax, world["segments"], world["circles"], world["boxes"])
+        goals = np.asarray(ep.start.get("goal", ep.start.get("goals", [])), dtype=float).reshape(-1, 2)
+        for j, c in zip(robots, colors):
+            xy = episode_frames(rec, ep, j)["pose"][:, :2]
+            if len(xy):
+                ax.plot(xy[:, 0], xy[:, 1], "-", color=c, lw=1.4, zorder=3)
+                ax.plot(xy[0, 0], xy[0, 1], "o", color=c, ms=4, zorder=4)
+                ax.plot(xy[-1, 0], xy[-1, 1], "x", color=c, ms=6, zorder=4)
+        for g, c in zip(goals, colors):
+            draw_goal(ax, g[None], env=0, radius=tol, color=c if len(goals) > 1 else "tab:green")
+        ax.set_aspect("equal")
+        ax.autoscale_view()
+        ax.set(xticks=[], yticks=[])
+        ax.set_title(f"env {ep.env} episode {ep.episode}: {ep.outcome}, {ep.steps} steps", fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, bbox_inches="tight")
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m torchnav.record.replay", description=__doc__.split("\n\n")[0])
     ap.add_argument("file", help="recording (.mcap)")
-    ap.add_argument("--out", help="write an animation of one episode (.gif or .mp4)")
+    ap.add_argument("--out", help="write an animation of one episode (.gif or .mp4), or a picture of every episode's path (.png)")
     ap.add_argument("--env", type=int, default=None, help="env index (default: the first recorded)")
     ap.add_argument("--episode", type=int, default=0, help="episode number of that env (default 0)")
     ap.add_argument("--fps", type=float, default=10.0)
@@ -269,6 +316,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--dpi", type=int, default=80)
     ap.add_argument("--json", action="store_true", help="print the episodes as JSON lines instead of a table")
     args = ap.parse_args(argv)
+    if args.out and Path(args.out).suffix.lower() not in (".png", ".gif", ".mp4", ".m4v", ".mov"):
+        print(f"error: --out {args.out}: unknown format {Path(args.out).suffix!r}; use .gif or .mp4 (one episode's animation) "
+              "or .png (every episode's path)", file=sys.stderr)
+        return 2
     try:
         rec = read_recording(args.file)
     except FileNotFoundError:
@@ -281,7 +332,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                               "start_time": e.start_time / 1e9}))
     else:
         print(summary(rec))
-    if args.out:
+    if args.out and Path(args.out).suffix.lower() == ".png":
+        try:
+            print(f"wrote {plot_episodes(rec, args.out, dpi=args.dpi)}")
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+    elif args.out:
         env = args.env if args.env is not None else (eps[0].env if eps else 0)
         match = [e for e in eps if e.env == env and e.episode == args.episode]
         if not match:
