@@ -45,7 +45,7 @@ from tqdm import tqdm
 from torchnav.checkpoint import load_checked, save_checked, write_atomic
 from torchnav.config import ConfigError, to_dict
 from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED
-from torchnav.policy import STATE_KEY, Actor, RecurrentActor, save_policy, policy_payload, to_policy
+from torchnav.policy import STATE_KEY, Actor, RecurrentActor, load_policy, save_policy, policy_payload, to_policy
 from torchnav.protocol import LineProtocol, MultiNavProtocol, NavProtocol, TaskProtocol
 from torchnav.tasks import MultiNavConfig, NavConfig
 from torchnav.train_config import LOGGER_BACKENDS, Recipe, check_backend, check_threads, load_config, resumed_config, save_config  # noqa: F401
@@ -75,7 +75,8 @@ class Run:
     # target_unix: the clock time periodic evaluation first reached eval.target_success
     counters: dict[str, Any] = field(default_factory=lambda: {
         "frames": 0, "updates": 0, "batches": 0, "wall_time": 0.0, "collect_s": 0.0, "update_s": 0.0, "eval_s": 0.0,
-        "time_to_target": None, "frames_to_target": None, "target_unix": None})
+        "time_to_target": None, "frames_to_target": None, "target_unix": None,
+        "eval_frames": None, "eval_score": None, "best_frames": None, "best_score": None})  # the last and the best periodic evaluation
     meta: dict[str, Any] = field(default_factory=dict)  # extra fields of the saved policy (DQN's action table)
 
     @property
@@ -120,6 +121,8 @@ def setup(name: str, argv: list[str], ckpt_format: str, action_mode: str | None 
     run = Run(name, ckpt_format, cfg, task, env, device, run_dir, make_logger(cfg, run_dir), threads, ckpt)
     if ckpt is not None:
         run.counters.update(ckpt["counters"])
+        if not (run_dir / "best_actor.pt").exists():  # a new run directory continuing a kept checkpoint: no best yet
+            run.counters["best_frames"] = run.counters["best_score"] = None
     return run
 
 
@@ -338,11 +341,39 @@ class ReplayState:
             self.buffer.extend(rows[:cursor])
 
 
+def n_step_returns(batch: TensorDictBase, n: int, gamma: float) -> TensorDictBase:
+    """The ``(envs, T)`` collector ``batch`` as ``n``-step transitions: each step's ``("next", "reward")`` becomes
+    the discounted sum of the rewards of up to ``n`` steps (fewer where the episode ends or the batch does),
+    ``("next", "observation")`` and ``("next", "terminated")`` those of the last of them, and ``("next",
+    "discount")`` is ``gamma`` to the power of their number: the target is ``reward + discount * (1 - terminated) *
+    Q(next)``. A new TensorDict of the replay keys; ``batch`` is left as it was."""
+    reward, done, term = batch["next", "reward"], batch["next", "done"], batch["next", "terminated"]
+    envs, t_len = batch.shape[:2]
+    t = torch.arange(t_len, device=reward.device).expand(envs, t_len)
+    total, discount = torch.zeros_like(reward), torch.ones_like(reward)
+    last, alive = t.clone(), torch.ones_like(t, dtype=torch.bool)
+    for k in range(int(n)):
+        j = (t + k).clamp(max=t_len - 1)
+        valid = alive & (t + k < t_len)
+        take = lambda x: x.gather(1, j.view(envs, t_len, *[1] * (x.dim() - 2)).expand_as(x))  # noqa: E731  x at step t + k
+        total = total + torch.where(valid.unsqueeze(-1), discount * take(reward), 0.0)
+        discount = torch.where(valid.unsqueeze(-1), discount * gamma, discount)
+        last = torch.where(valid, j, last)
+        alive = valid & ~take(done).squeeze(-1)
+    at_last = lambda x: x.gather(1, last.view(envs, t_len, *[1] * (x.dim() - 2)).expand_as(x))  # noqa: E731
+    return TensorDict({"observation": batch["observation"], "action": batch["action"],
+                       "next": {"observation": at_last(batch["next", "observation"]), "reward": total, "discount": discount,
+                                "done": at_last(done), "terminated": at_last(term)}}, batch_size=batch.shape[:2], device=batch.device)
+
+
 def replay_updates(run: Run, buffer: TensorDictReplayBuffer, batch: TensorDictBase, step: Callable[[TensorDictBase], dict]) -> dict:
-    """Store ``batch``, then ``train.updates_per_batch`` calls of ``step(sample) -> {name: loss}`` once the
-    buffer holds ``train.init_random_frames`` transitions (TD3, SAC, DQN); the last step's losses."""
+    """Store ``batch`` (as ``train.n_steps``-step transitions where the recipe has that setting above 1), then
+    ``train.updates_per_batch`` calls of ``step(sample) -> {name: loss}`` once the buffer holds
+    ``train.init_random_frames`` transitions (TD3, SAC, DQN); the last step's losses."""
     tc, out = run.cfg.train, {}
-    buffer.extend(batch.reshape(-1).select(*REPLAY_KEYS))
+    if int(getattr(tc, "n_steps", 1)) > 1:
+        batch = n_step_returns(batch, int(tc.n_steps), float(tc.gamma))
+    buffer.extend(batch.reshape(-1).select(*REPLAY_KEYS, *((("next", "discount"),) if int(getattr(tc, "n_steps", 1)) > 1 else ())))
     if len(buffer) >= int(tc.init_random_frames):
         for _ in range(int(tc.updates_per_batch)):
             out = step(buffer.sample())
@@ -402,6 +433,28 @@ def adam(params: Iterable[torch.Tensor], **kwargs: Any) -> torch.optim.Adam:
         return torch.optim.Adam(params, fused=True, **kwargs)
     except RuntimeError:  # a device without a fused Adam
         return torch.optim.Adam(params, **kwargs)
+
+
+class TwinQ(torch.nn.Module):
+    """Two independent critics ``Q1(s, a), Q2(s, a)`` (TD3, SAC), each an MLP over the concatenated observation
+    and action."""
+
+    def __init__(self, obs_size: int, act_size: int, hidden: Iterable[int]) -> None:
+        from torchrl.modules import MLP
+
+        super().__init__()
+        make = lambda: MLP(in_features=obs_size + act_size, out_features=1, num_cells=list(hidden), activation_class=torch.nn.ReLU)  # noqa: E731
+        self.q1, self.q2 = make(), make()
+
+    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x = torch.cat((obs, action), dim=-1)
+        return self.q1(x), self.q2(x)
+
+
+@torch.no_grad()
+def soft_update(target: torch.nn.Module, source: torch.nn.Module, tau: float) -> None:
+    """``target <- (1 - tau) target + tau source``, every parameter in one fused call."""
+    torch._foreach_lerp_(list(target.parameters()), list(source.parameters()), tau)
 
 
 def decay_lr(optim: torch.optim.Optimizer, lr: float, frames: int, total_frames: int) -> None:
@@ -499,7 +552,7 @@ class Progress:
     def evaluate(self) -> None:
         run, c = self.run, self.run.counters
         t0 = time.perf_counter()
-        s = evaluate(run, self.actor(), int(run.cfg.eval.episodes), PERIODIC_EVAL_SEED + int(run.cfg.seed))
+        s = periodic_evaluation(run, self.actor())
         c["eval_s"] += time.perf_counter() - t0
         c["wall_time"] = time.perf_counter() - self.t_start
         log_rates(run.logger, "eval", s, c["frames"])
@@ -529,6 +582,40 @@ def evaluate(run: Run, actor: Actor | RecurrentActor, episodes: int, seed: int) 
         return run.task.evaluate(to_policy(actor), episodes, seed, run.device)
     finally:
         actor.train(was_training)
+
+
+def periodic_evaluation(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any]:
+    """The periodic evaluation of ``actor`` (``eval.episodes`` episodes from the periodic seeds, never the final
+    evaluation's); notes its score in the counters and, with ``eval.keep_best``, writes ``best_actor.pt`` when it
+    scores at least the best so far."""
+    c = run.counters
+    s = evaluate(run, actor, int(run.cfg.eval.episodes), PERIODIC_EVAL_SEED + int(run.cfg.seed))
+    c["eval_frames"], c["eval_score"] = int(c["frames"]), float(s["score"])
+    if run.cfg.eval.keep_best and (c["best_score"] is None or s["score"] >= c["best_score"]):
+        save_policy(run.dir / "best_actor.pt", actor, **policy_meta(run), periodic_eval={"frames": int(c["frames"]), "score": float(s["score"])})
+        c["best_frames"], c["best_score"] = int(c["frames"]), float(s["score"])
+    return s
+
+
+def select_best(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any] | None:
+    """With ``eval.keep_best``: the last ``actor``'s periodic score (evaluated now if its batch was not; that
+    evaluation writes nothing, since the checkpoint is already written), then the best periodic evaluation's
+    weights (``best_actor.pt``) loaded into ``actor`` and written as ``actor.pt`` when they scored higher than the
+    last; what was chosen (None without ``keep_best``)."""
+    c = run.counters
+    if not run.cfg.eval.keep_best or c["best_frames"] is None:
+        return None
+    last = c["eval_score"]
+    if c["eval_frames"] != int(c["frames"]):
+        t0 = time.perf_counter()
+        last = float(evaluate(run, actor, int(run.cfg.eval.episodes), PERIODIC_EVAL_SEED + int(run.cfg.seed))["score"])
+        c["eval_s"] += time.perf_counter() - t0
+    if last >= c["best_score"]:
+        return {"kept": "last", "frames": int(c["frames"]), "periodic_score": last}
+    best = load_policy(run.dir / "best_actor.pt", map_location=run.device)
+    actor.load_state_dict(best.actor.state_dict())
+    save_policy(run.dir / "actor.pt", actor, **policy_meta(run))
+    return {"kept": "best", "frames": c["best_frames"], "periodic_score": c["best_score"], "last_periodic_score": last}
 
 
 def policy_meta(run: Run) -> dict[str, Any]:
@@ -573,6 +660,7 @@ def stopped(run: Run) -> dict[str, Any]:
 def finish(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any]:
     """Final evaluation on ``eval.final_episodes`` episodes, MCAP episodes, ``summary.json``; prints the table."""
     cfg, c = run.cfg, run.counters
+    selected = select_best(run, actor)
     t0 = time.perf_counter()
     summary = evaluate(run, actor, int(cfg.eval.final_episodes), FINAL_EVAL_SEED + int(cfg.seed))
     result = {
@@ -581,13 +669,15 @@ def finish(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any]:
         "frames_to_target": c["frames_to_target"], "target_unix": c["target_unix"],
         "collect_s": c["collect_s"], "update_s": c["update_s"], "periodic_eval_s": c["eval_s"],
         "threads": run.threads.changes or run.threads.threads,  # [(s into the run, threads, others' cores)] with auto
-        "eval": summary, "eval_wall_s": time.perf_counter() - t0,
+        "selected": selected, "eval": summary, "eval_wall_s": time.perf_counter() - t0,
     }
     log_rates(run.logger, "final", summary, c["frames"])
     if cfg.eval.record_episodes:
         rec = run.task.record(to_policy(actor), run.dir / "episodes.mcap", int(cfg.eval.record_episodes), FINAL_EVAL_SEED + int(cfg.seed),
                               run.device, {"checkpoint": str(run.dir / "actor.pt"), "config": to_dict(cfg)})
         result["episodes_mcap"] = None if rec.error else str(run.dir / "episodes.mcap")
+        if result["episodes_mcap"]:
+            result["trajectories_png"] = draw_recorded(run.dir / "episodes.mcap", run.dir / "trajectories.png")
     write_json(run.dir / "summary.json", result)
     print()
     print(run.task.format(summary))
@@ -595,8 +685,31 @@ def finish(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any]:
           f"updates {c['update_s']:.0f} s ({c['frames'] / max(c['update_s'], 1e-9):,.0f} frames/s), periodic evaluation {c['eval_s']:.0f} s")
     print(f"  trained {c['frames']:,} frames, {c['updates']:,} updates in {c['wall_time']:.0f} s"
           + (f"; reached {100 * cfg.eval.target_success:.0f}% at {c['time_to_target']:.0f} s" if c["time_to_target"] else ""))
-    print(f"  run directory: {run.dir}  (actor.pt, checkpoint.pt, summary.json, logs/)")
+    if selected is not None and selected["kept"] == "best":
+        print(f"  kept the actor of the periodic evaluation at {selected['frames']:,} frames ({100 * selected['periodic_score']:.1f}%; "
+              f"the last actor's: {100 * selected['last_periodic_score']:.1f}%); the final evaluation above is of that actor")
+    print(f"  files in {run.dir}:")
+    print(f"    actor.pt          the policy: python recipes/evaluate.py {run.dir / 'actor.pt'}")
+    if result.get("episodes_mcap"):
+        print(f"    episodes.mcap     {int(cfg.eval.record_episodes)} final-evaluation episodes: open in Foxglove (docs/foxglove.md), "
+              f"or python -m torchnav.record.replay {result['episodes_mcap']} --out episode.gif")
+    if result.get("trajectories_png"):
+        print("    trajectories.png  the paths of those episodes")
+    print("    checkpoint.pt     everything to continue: --resume; summary.json; logs/")
     return result
+
+
+def draw_recorded(mcap: Path, png: Path) -> str | None:
+    """``png``: the paths of every episode in the recording ``mcap`` (``torchnav.record.replay.plot_episodes``); its
+    path, or None with the reason printed when it cannot be drawn (the run's results stand without it)."""
+    from torchnav.record.reader import read_recording
+    from torchnav.record.replay import plot_episodes
+
+    try:
+        return str(plot_episodes(read_recording(mcap), png))
+    except (OSError, ValueError) as e:
+        print(f"  (no trajectories.png: {e})", file=sys.stderr)
+        return None
 
 
 def write_json(path: Path, obj: Any) -> None:

@@ -22,33 +22,12 @@ from pathlib import Path
 
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
-from torch import nn
-from torchrl.modules import MLP, AdditiveGaussianModule
+from torchrl.modules import AdditiveGaussianModule
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import builders as B  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
-
-
-class TwinQ(nn.Module):
-    """Two independent critics ``Q1(s, a), Q2(s, a)``, each an MLP over the concatenated observation and action."""
-
-    def __init__(self, obs_size: int, act_size: int, hidden) -> None:
-        super().__init__()
-        make = lambda: MLP(in_features=obs_size + act_size, out_features=1, num_cells=list(hidden), activation_class=nn.ReLU)  # noqa: E731
-        self.q1, self.q2 = make(), make()
-
-    def forward(self, obs: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        x = torch.cat((obs, action), dim=-1)
-        return self.q1(x), self.q2(x)
-
-
-@torch.no_grad()
-def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
-    """``target <- (1 - tau) target + tau source``, parameter by parameter."""
-    for t, s in zip(target.parameters(), source.parameters()):
-        t.lerp_(s, tau)
 
 
 def main(argv: list[str]) -> dict:
@@ -58,7 +37,7 @@ def main(argv: list[str]) -> dict:
     # -- networks, optimisers, exploration noise, replay buffer -----------------------------------
     obs_size, act_size = env.task.obs_size, 2
     actor = Actor(obs_size, act_size, tc.hidden).to(device)
-    critic = TwinQ(obs_size, act_size, tc.hidden).to(device)
+    critic = B.TwinQ(obs_size, act_size, tc.hidden).to(device)
     actor_target, critic_target = copy.deepcopy(actor).requires_grad_(False), copy.deepcopy(critic).requires_grad_(False)
     opt_actor = B.adam(actor.parameters(), lr=tc.lr_actor)
     opt_critic = B.adam(critic.parameters(), lr=tc.lr_critic)
@@ -81,19 +60,22 @@ def main(argv: list[str]) -> dict:
             smoothing = (torch.randn_like(action) * noise).clamp(-clip, clip)
             next_action = (actor_target(nxt["observation"]) + smoothing).clamp(-1.0, 1.0)
             q_next = torch.minimum(*critic_target(nxt["observation"], next_action))
-            target = nxt["reward"] + gamma * (~nxt["terminated"]) * q_next  # truncation still bootstraps
+            discount = nxt["discount"] if int(tc.n_steps) > 1 else gamma  # gamma ** (steps summed) with n-step returns
+            target = nxt["reward"] + discount * (~nxt["terminated"]) * q_next  # truncation still bootstraps
         q1, q2 = critic(obs, action)
         q_loss = (q1 - target).pow(2).mean() + (q2 - target).pow(2).mean()
         opt_critic.zero_grad(set_to_none=True)
         q_loss.backward()
         opt_critic.step()
         if (run.counters["updates"] + 1) % int(tc.policy_delay) == 0:
+            critic.requires_grad_(False)  # the actor's loss needs no gradients of the critic's weights: a third fewer matmuls
             a_loss = -critic.q1(torch.cat((obs, actor(obs)), dim=-1)).mean()
             opt_actor.zero_grad(set_to_none=True)
             a_loss.backward()
+            critic.requires_grad_(True)
             opt_actor.step()
-            soft_update(actor_target, actor, tau)
-            soft_update(critic_target, critic, tau)
+            B.soft_update(actor_target, actor, tau)
+            B.soft_update(critic_target, critic, tau)
         return {"qvalue": q_loss.detach()}  # read (a host sync) only when the loop logs it
 
     # -- the loop ------------------------------------------------------------------------------------

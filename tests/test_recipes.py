@@ -106,8 +106,14 @@ def test_recipe_smoke_and_resume(tmp_path, case):
     assert_same_weights(run / "actor.pt", tmp_path / "whole" / "actor.pt")
 
 
+def _policy_weights(path):
+    """The policy's weights in an ``actor.pt``, or in the ``policy`` a ``checkpoint.pt`` embeds."""
+    ck = torch.load(path, weights_only=True)
+    return (ck["policy"] if "policy" in ck else ck)["state"]
+
+
 def assert_same_weights(a, b):
-    wa, wb = torch.load(a, weights_only=True)["state"], torch.load(b, weights_only=True)["state"]
+    wa, wb = _policy_weights(a), _policy_weights(b)
     assert wa.keys() == wb.keys()
     for k in wa:
         assert torch.equal(wa[k], wb[k]), f"{k} differs by {float((wa[k] - wb[k]).abs().max())}"
@@ -130,6 +136,74 @@ def test_kept_checkpoints_replay_a_run_from_any_interval(tmp_path):
     assert_same_weights(replay / "actor.pt", run / "actor.pt")
     # the replay continues with the saved config, checkpoint.keep included
     assert sorted(p.name for p in (replay / "checkpoints").glob("*.pt")) == ["512.pt"]
+
+
+def test_keep_best_ends_with_the_best_periodic_actor_scored_on_other_episodes(tmp_path, monkeypatch):
+    # periodic evaluations at 256, 512, 768 and 1024 frames score 0.5, 0.9, 0.3, 0.2 (the real evaluation, its score
+    # replaced): the run must end with the actor of 512 frames, and score it on the final evaluation's own seeds
+    import builders
+
+    from torchnav.evaluation import FINAL_EVAL_SEED, PERIODIC_EVAL_SEED
+
+    real, scripted, seeds = builders.evaluate, iter([0.5, 0.9, 0.3, 0.2]), []
+
+    def scripted_evaluate(run, actor, episodes, seed):
+        seeds.append(seed)
+        s = real(run, actor, episodes, seed)
+        return {**s, "score": next(scripted)} if seed == PERIODIC_EVAL_SEED else s
+
+    monkeypatch.setattr(builders, "evaluate", scripted_evaluate)
+    run = tmp_path / "run"
+    res = _td3(TINY + ["train.total_frames=1024", f"logger.run_dir={run}"])
+    assert res["selected"] == {"kept": "best", "frames": 512, "periodic_score": 0.9, "last_periodic_score": 0.2}
+    assert seeds == [PERIODIC_EVAL_SEED] * 4 + [FINAL_EVAL_SEED]
+    assert torch.load(run / "best_actor.pt", weights_only=True)["periodic_eval"] == {"frames": 512, "score": 0.9}
+    assert_same_weights(run / "actor.pt", run / "best_actor.pt")
+    # the training state stays the last one: the checkpoint's policy is the 1024-frame actor, not the kept one
+    last, kept = _policy_weights(run / "checkpoint.pt"), _policy_weights(run / "actor.pt")
+    assert any(not torch.equal(last[k], kept[k]) for k in kept)
+    assert json.loads((run / "summary.json").read_text())["selected"]["kept"] == "best"
+    assert (run / "trajectories.png").stat().st_size > 0
+
+    # eval.keep_best=false: the last actor, whatever the periodic scores
+    scripted = iter([0.5, 0.9, 0.3, 0.2])
+    res = _td3(TINY + ["train.total_frames=1024", "eval.keep_best=false", f"logger.run_dir={tmp_path / 'last'}"])
+    assert res["selected"] is None and not (tmp_path / "last" / "best_actor.pt").exists()
+    assert_same_weights(tmp_path / "last" / "actor.pt", tmp_path / "last" / "checkpoint.pt")
+
+
+def test_keep_best_scores_a_last_actor_that_no_periodic_evaluation_saw(tmp_path, monkeypatch):
+    # evaluation every 512 frames, 768 trained: the 768-frame actor is scored at the end and kept when it is not worse
+    import builders
+
+    from torchnav.evaluation import PERIODIC_EVAL_SEED
+
+    real, scripted = builders.evaluate, iter([0.4, 0.4])
+    monkeypatch.setattr(builders, "evaluate", lambda run, actor, episodes, seed: (
+        {**real(run, actor, episodes, seed), "score": next(scripted)} if seed == PERIODIC_EVAL_SEED else real(run, actor, episodes, seed)))
+    res = _td3(TINY + ["train.total_frames=768", "eval.interval_frames=512", "eval.record_episodes=0", f"logger.run_dir={tmp_path / 'run'}"])
+    assert res["selected"] == {"kept": "last", "frames": 768, "periodic_score": 0.4}
+    assert_same_weights(tmp_path / "run" / "actor.pt", tmp_path / "run" / "checkpoint.pt")
+
+
+def test_n_step_returns_stop_at_episode_ends_and_the_batch_end():
+    from builders import n_step_returns
+    from tensordict import TensorDict
+
+    done = torch.zeros(2, 6, 1, dtype=torch.bool)
+    done[0, 2] = True  # env 0's episode ends at its third step: terminated
+    obs = torch.arange(12.0).reshape(2, 6, 1)
+    batch = TensorDict({"observation": obs, "action": torch.zeros(2, 6, 2), "next": {
+        "observation": obs + 0.5, "reward": torch.ones(2, 6, 1), "done": done, "terminated": done.clone()}}, [2, 6])
+    out = n_step_returns(batch, 3, 0.9)
+    assert out["next", "observation"].squeeze(-1).tolist() == [[2.5, 2.5, 2.5, 5.5, 5.5, 5.5], [8.5, 9.5, 10.5, 11.5, 11.5, 11.5]]
+    torch.testing.assert_close(out["next", "reward"].squeeze(-1), torch.tensor([[2.71, 1.9, 1.0, 2.71, 1.9, 1.0], [2.71, 2.71, 2.71, 2.71, 1.9, 1.0]]))
+    torch.testing.assert_close(out["next", "discount"].squeeze(-1), torch.tensor([[0.729, 0.81, 0.9] * 2, [0.729] * 4 + [0.81, 0.9]]))
+    assert out["next", "terminated"].squeeze(-1).tolist() == [[True] * 3 + [False] * 3, [False] * 6]
+    assert torch.equal(batch["next", "observation"], obs + 0.5)  # the batch itself is left as it was
+    one = n_step_returns(batch, 1, 0.9)  # n = 1: the batch's own transitions, discount gamma
+    assert torch.equal(one["next", "observation"], obs + 0.5) and torch.equal(one["next", "reward"], batch["next", "reward"])
+    assert torch.allclose(one["next", "discount"], torch.full((2, 6, 1), 0.9))
 
 
 def test_ppo_lr_decay_falls_linearly_to_zero_at_total_frames(tmp_path):

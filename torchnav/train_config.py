@@ -86,6 +86,9 @@ class EvalConfig(Config):
     final_episodes: int = count(1, 1000)  # episodes of the final evaluation
     target_success: float = probability(0.95)  # the summary reports when periodic evaluation first reached this
     record_episodes: int = count(0, 4)  # final-evaluation episodes written to <run>/episodes.mcap (0: none)
+    # true: the run ends with the actor that scored best in periodic evaluation (ties: the later; the last actor is
+    # evaluated too), kept as <run>/best_actor.pt as it goes; the final evaluation (other seeds) then scores that one
+    keep_best: bool = flag(True)
 
 
 @dataclass(frozen=True)
@@ -151,6 +154,7 @@ class TD3Train(Train):
     batch_size: int = count(1, 256)  # transitions per gradient step (at most buffer_size)
     buffer_size: int = count(1, 1_000_000)  # replay buffer capacity (transitions)
     gamma: float = discount(0.99)  # discount
+    n_steps: int = count(1, 1)  # n-step returns: each stored transition sums up to this many rewards (within a collected batch)
     tau: float = discount(0.005)  # target-network soft-update rate
     lr_actor: float = positive(3e-4)  # Adam learning rate, actor
     lr_critic: float = positive(3e-4)  # Adam learning rate, twin critics
