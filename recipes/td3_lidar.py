@@ -6,8 +6,9 @@
 
 Reads top to bottom: the run (config, env, run directory: ``builders.setup``) -> actor, twin
 critics and their target copies -> replay buffer and collector (actor plus annealed Gaussian
-noise) -> the loop: store each batch, then per gradient step the critics towards the clipped
-double-Q target with target-policy smoothing, and every `policy_delay` steps the actor and a soft
+noise) -> the loop: store each batch as 3-step transitions (``train.n_steps``: each sums the rewards
+of up to 3 steps and bootstraps from the third), then per gradient step the critics towards the
+clipped double-Q target with target-policy smoothing, and every `policy_delay` steps the actor and a soft
 update of the targets -> the final evaluation. The update is plain PyTorch, as in CleanRL's TD3:
 at this network size TorchRL's ``TD3Loss`` spends most of a gradient step in bookkeeping
 (docs/performance.md). Every config key, its default and its documentation: torchnav/train_config.py;
@@ -31,7 +32,7 @@ from torchnav.policy import Actor  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    run = B.setup("td3_lidar", argv, ckpt_format="torchnav-td3-v3", action_mode="continuous")
+    run = B.setup("td3_lidar", argv, ckpt_format="torchnav-td3-v4", action_mode="continuous")
     tc, env, device = run.cfg.train, run.env, run.device
 
     # -- networks, optimisers, exploration noise, replay buffer -----------------------------------

@@ -147,14 +147,14 @@ class Train(Config):
 
 @dataclass(frozen=True)
 class TD3Train(Train):
-    total_frames: int = count(1, 250_000)  # env steps over all envs
+    total_frames: int = count(1, 250_880)  # env steps over all envs (245 batches)
     frames_per_batch: int = count(1, 1024)  # env steps collected between update rounds (a multiple of env.num_envs)
-    init_random_frames: int = count(0, 5000)  # uniformly random actions first; updates start once the buffer holds this many
+    init_random_frames: int = count(0, 5120)  # uniformly random actions first; updates start once the buffer holds this many
     updates_per_batch: int = count(1, 128)  # gradient steps per collected batch (1 per 8 frames; fewer, larger steps learn less)
     batch_size: int = count(1, 256)  # transitions per gradient step (at most buffer_size)
     buffer_size: int = count(1, 1_000_000)  # replay buffer capacity (transitions)
     gamma: float = discount(0.99)  # discount
-    n_steps: int = count(1, 1)  # n-step returns: each stored transition sums up to this many rewards (within a collected batch)
+    n_steps: int = count(1, 3)  # n-step returns: each stored transition sums up to this many rewards (within a collected batch; 1: one-step TD3)
     tau: float = discount(0.005)  # target-network soft-update rate
     lr_actor: float = positive(3e-4)  # Adam learning rate, actor
     lr_critic: float = positive(3e-4)  # Adam learning rate, twin critics
@@ -169,9 +169,9 @@ class TD3Train(Train):
 
 @dataclass(frozen=True)
 class SACTrain(Train):
-    total_frames: int = count(1, 250_000)  # env steps over all envs
+    total_frames: int = count(1, 250_368)  # env steps over all envs (489 batches)
     frames_per_batch: int = count(1, 512)  # env steps collected between update rounds (a multiple of env.num_envs)
-    init_random_frames: int = count(0, 5000)  # uniformly random actions first; updates start once the buffer holds this many
+    init_random_frames: int = count(0, 5120)  # uniformly random actions first; updates start once the buffer holds this many
     updates_per_batch: int = count(1, 64)  # gradient steps per collected batch
     batch_size: int = count(1, 256)  # transitions per gradient step (at most buffer_size)
     buffer_size: int = count(1, 1_000_000)  # replay buffer capacity (transitions)
@@ -224,9 +224,9 @@ class MAPPOTrain(PPOTrain):
 
 @dataclass(frozen=True)
 class DQNTrain(Train):
-    total_frames: int = count(1, 1_000_000)  # env steps over all envs
+    total_frames: int = count(1, 1_000_448)  # env steps over all envs (977 batches)
     frames_per_batch: int = count(1, 1024)  # env steps collected between update rounds (a multiple of env.num_envs)
-    init_random_frames: int = count(0, 10_000)  # uniformly random actions first; updates start once the buffer holds this many
+    init_random_frames: int = count(0, 10_240)  # uniformly random actions first; updates start once the buffer holds this many
     updates_per_batch: int = count(1, 16)  # gradient steps per collected batch
     batch_size: int = count(1, 512)  # transitions per gradient step (at most buffer_size)
     buffer_size: int = count(1, 500_000)  # replay buffer capacity (transitions)
