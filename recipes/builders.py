@@ -371,9 +371,10 @@ def replay_updates(run: Run, buffer: TensorDictReplayBuffer, batch: TensorDictBa
     ``train.updates_per_batch`` calls of ``step(sample) -> {name: loss}`` once the buffer holds
     ``train.init_random_frames`` transitions (TD3, SAC, DQN); the last step's losses."""
     tc, out = run.cfg.train, {}
+    keys = REPLAY_KEYS
     if int(getattr(tc, "n_steps", 1)) > 1:
-        batch = n_step_returns(batch, int(tc.n_steps), float(tc.gamma))
-    buffer.extend(batch.reshape(-1).select(*REPLAY_KEYS, *((("next", "discount"),) if int(getattr(tc, "n_steps", 1)) > 1 else ())))
+        batch, keys = n_step_returns(batch, int(tc.n_steps), float(tc.gamma)), REPLAY_KEYS + (("next", "discount"),)
+    buffer.extend(batch.reshape(-1).select(*keys))
     if len(buffer) >= int(tc.init_random_frames):
         for _ in range(int(tc.updates_per_batch)):
             out = step(buffer.sample())
@@ -584,12 +585,16 @@ def evaluate(run: Run, actor: Actor | RecurrentActor, episodes: int, seed: int) 
         actor.train(was_training)
 
 
+def _periodic_summary(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any]:
+    return evaluate(run, actor, int(run.cfg.eval.episodes), PERIODIC_EVAL_SEED + int(run.cfg.seed))
+
+
 def periodic_evaluation(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any]:
     """The periodic evaluation of ``actor`` (``eval.episodes`` episodes from the periodic seeds, never the final
     evaluation's); notes its score in the counters and, with ``eval.keep_best``, writes ``best_actor.pt`` when it
     scores at least the best so far."""
     c = run.counters
-    s = evaluate(run, actor, int(run.cfg.eval.episodes), PERIODIC_EVAL_SEED + int(run.cfg.seed))
+    s = _periodic_summary(run, actor)
     c["eval_frames"], c["eval_score"] = int(c["frames"]), float(s["score"])
     if run.cfg.eval.keep_best and (c["best_score"] is None or s["score"] >= c["best_score"]):
         save_policy(run.dir / "best_actor.pt", actor, **policy_meta(run), periodic_eval={"frames": int(c["frames"]), "score": float(s["score"])})
@@ -608,7 +613,7 @@ def select_best(run: Run, actor: Actor | RecurrentActor) -> dict[str, Any] | Non
     last = c["eval_score"]
     if c["eval_frames"] != int(c["frames"]):
         t0 = time.perf_counter()
-        last = float(evaluate(run, actor, int(run.cfg.eval.episodes), PERIODIC_EVAL_SEED + int(run.cfg.seed))["score"])
+        last = float(_periodic_summary(run, actor)["score"])
         c["eval_s"] += time.perf_counter() - t0
     if last >= c["best_score"]:
         return {"kept": "last", "frames": int(c["frames"]), "periodic_score": last}
