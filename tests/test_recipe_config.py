@@ -24,7 +24,7 @@ L = K  # the loading functions live in the same module
 
 # every shipped config file -> the recipe that reads it
 SHIPPED = {p.stem: p.stem for p in (ROOT / "recipes" / "configs").glob("*.yaml") if p.stem in K.RECIPES}
-SHIPPED.update({"ppo_generalist": "ppo_lidar", "ppo_movers": "ppo_lidar"})
+SHIPPED.update({"ppo_generalist": "ppo_lidar", "ppo_generalist_jackal": "ppo_lidar", "ppo_movers": "ppo_lidar"})
 
 
 def test_every_config_file_has_its_recipe():
@@ -40,7 +40,8 @@ def test_shipped_yaml_lists_what_differs_from_its_class_and_round_trips(config, 
     assert isinstance(cfg.task, LineConfig if recipe.endswith("_line") else NavConfig)
     # each key of the file is a field, each value is the field's value, and differs from the default
     data = yaml.safe_load(path.read_text()) or {}
-    default = K.RECIPES[recipe]()
+    base = data.pop(K.BASE_KEY, None)  # a file with a base lists what differs from its base's config
+    default = L.load_config(recipe, ["--config", str(path.parent / base)]) if base else K.RECIPES[recipe]()
 
     def same(node, obj, base, key):
         if isinstance(node, dict) and dataclasses.is_dataclass(obj):
@@ -67,6 +68,27 @@ def test_config_dir_and_default_folder(tmp_path):
     assert L.load_config("td3_lidar", []).seed == 0
     with pytest.raises(ConfigError, match="config file not found"):
         L.load_config("td3_lidar", [], config_dir=tmp_path / "nowhere")
+
+
+def test_base_file_lays_its_changes_over_another(tmp_path):
+    """``base: FILE`` (relative to the file): mappings merge key by key, other values replace, chains
+    follow; a missing base, a cycle, a base that is not a path and unreadable YAML are named."""
+    (tmp_path / "a.yaml").write_text("seed: 3\ntask:\n  max_steps: 300\n  robot: {v_max: 0.5, omega_max: 2.0}\n")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "b.yaml").write_text("base: ../a.yaml\ntask:\n  robot: {omega_max: 3.0}\n")
+    (tmp_path / "c.yaml").write_text("base: sub/b.yaml\nseed: 5\n")
+    cfg = L.load_config("td3_lidar", ["--config", str(tmp_path / "c.yaml"), "task.robot.v_max=0.7"])
+    assert (cfg.seed, cfg.task.max_steps, cfg.task.robot.v_max, cfg.task.robot.omega_max) == (5, 300, 0.7, 3.0)
+    assert L.merge_config({"a": {"b": 1, "c": [1]}, "d": 1}, {"a": {"c": [2]}, "d": {"e": 1}}) == {"a": {"b": 1, "c": [2]}, "d": {"e": 1}}
+    cases = {"base: nowhere.yaml\n": r"config file not found: .*nowhere.yaml \(the base of .*bad.yaml\)",
+             "base: bad.yaml\n": r"base: bad.yaml is a cycle",
+             "base: [a.yaml]\n": r"base: expected the path of the config file this one changes",
+             "seed: [1\n": r"bad.yaml: not readable YAML",
+             "- 1\n": r"bad.yaml: expected a mapping of config sections, got list"}
+    for text, message in cases.items():
+        (tmp_path / "bad.yaml").write_text(text)
+        with pytest.raises(ConfigError, match=message):
+            L.load_config("td3_lidar", ["--config", str(tmp_path / "bad.yaml")])
 
 
 def test_every_train_default_is_its_main_recipe():

@@ -474,12 +474,49 @@ def build(name: str, data: dict[str, Any], overrides: Iterable[str] = (), source
     return from_dict(cls, data, where="")
 
 
-def load_config(name: str, argv: list[str], config_dir: Path | str | None = None) -> Recipe:
-    """``<config_dir>/<name>.yaml`` (default :data:`CONFIG_DIR`; or ``--config FILE``) with the command line's overrides, validated."""
-    path, overrides = parse_cli(name, argv, config_dir)
+BASE_KEY = "base"  # a config file's top-level key naming the config file it starts from
+
+
+def merge_config(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``changes`` laid over it: mappings merge key by key, any other value replaces."""
+    out = dict(base)
+    for key, value in changes.items():
+        out[key] = merge_config(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def read_config_file(path: Path | str, _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """A config file's content, with the files of its ``base:`` chain laid under it.
+
+    ``base: FILE`` (a path relative to the file) makes the file a list of changes to FILE's config:
+    mappings merge key by key, so a section given in the file changes only the keys it names
+    (``recipes/configs/ppo_generalist_jackal.yaml`` starts from ``ppo_generalist.yaml``)."""
+    path = Path(path)
     if not path.is_file():
-        raise ConfigError(f"config file not found: {path}")
-    return build(name, yaml.safe_load(path.read_text()) or {}, overrides, str(path))
+        raise ConfigError(f"config file not found: {path}" + (f" (the base of {_chain[-1]})" if _chain else ""))
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{path}: not readable YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of config sections, got {type(data).__name__}")
+    if BASE_KEY not in data:
+        return data
+    base = data.pop(BASE_KEY)
+    if not isinstance(base, str) or not base.strip():
+        raise ConfigError(f"{path}: {BASE_KEY}: expected the path of the config file this one changes (relative to {path.parent}), got {base!r}")
+    chain = _chain + (path.resolve(),)
+    base_path = path.parent / base
+    if base_path.resolve() in chain:
+        raise ConfigError(f"{path}: {BASE_KEY}: {base} is a cycle: {' -> '.join(str(p) for p in chain)} -> {base_path.resolve()}")
+    return merge_config(read_config_file(base_path, chain), data)
+
+
+def load_config(name: str, argv: list[str], config_dir: Path | str | None = None) -> Recipe:
+    """``<config_dir>/<name>.yaml`` (default :data:`CONFIG_DIR`; or ``--config FILE``; with its
+    ``base:`` chain, :func:`read_config_file`) with the command line's overrides, validated."""
+    path, overrides = parse_cli(name, argv, config_dir)
+    return build(name, read_config_file(path), overrides, str(path))
 
 
 # What a resumed run may change from the config it was started with: its length, evaluation,
