@@ -37,7 +37,7 @@ import torch
 import yaml
 
 from .checkpoint import write_atomic
-from .config import (Config, ConfigError, checked, count, discount, flag, from_dict, is_int, non_negative, one_of, positive,
+from .config import (Config, ConfigError, checked, count, discount, flag, from_dict, is_int, merge, non_negative, one_of, positive,
                      probability, real, sizes, to_dict)
 from .policy import RECURRENT
 from .tasks import LineConfig, MultiNavConfig, NavConfig
@@ -477,14 +477,6 @@ def build(name: str, data: dict[str, Any], overrides: Iterable[str] = (), source
 BASE_KEY = "base"  # a config file's top-level key naming the config file it starts from
 
 
-def merge_config(base: dict[str, Any], changes: dict[str, Any]) -> dict[str, Any]:
-    """``base`` with ``changes`` laid over it: mappings merge key by key, any other value replaces."""
-    out = dict(base)
-    for key, value in changes.items():
-        out[key] = merge_config(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
-    return out
-
-
 def read_config_file(path: Path | str, _chain: tuple[Path, ...] = ()) -> dict[str, Any]:
     """A config file's content, with the files of its ``base:`` chain laid under it.
 
@@ -509,7 +501,7 @@ def read_config_file(path: Path | str, _chain: tuple[Path, ...] = ()) -> dict[st
     base_path = path.parent / base
     if base_path.resolve() in chain:
         raise ConfigError(f"{path}: {BASE_KEY}: {base} is a cycle: {' -> '.join(str(p) for p in chain)} -> {base_path.resolve()}")
-    return merge_config(read_config_file(base_path, chain), data)
+    return merge(read_config_file(base_path, chain), data)
 
 
 def load_config(name: str, argv: list[str], config_dir: Path | str | None = None) -> Recipe:
