@@ -48,6 +48,10 @@ the mean over all episodes of ``success * min(1, optimal / actual time)``
 (``torchnav.evaluation.time_efficiency``). Smoothness: ``speed_change`` and ``turn_change``,
 the mean absolute change of the driven speed and turn rate per step.
 
+Overrides: ``--set KEY=VALUE ...`` lays task keys over every method's config (each checkpoint's own,
+and the controllers'), e.g. ``--set robot.preset=jackal`` plays a policy trained on the idealised
+robot on a Jackal-class body; a bad key or value is named before any episode.
+
 Robustness: ``--perturb NAME ...`` (none given: all) also plays every method on every cell
 under each perturbation of ``torchnav.evaluation.PERTURBATIONS`` (3 cm lidar noise, odometry
 noise, 5% lidar dropout, a one-step actuator delay, 1 m/s^2 and 3 rad/s^2 acceleration limits),
@@ -72,6 +76,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import builders as B  # noqa: E402
 from compare import _pct, evaluate_method, load_methods, method_configs  # noqa: E402
+from evaluate import parse_sets  # noqa: E402
 
 from torchnav.config import to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, PlannerController  # noqa: E402
@@ -286,7 +291,7 @@ def document(a: argparse.Namespace, levels: dict[str, float], cells: list[Cell],
              results: dict, planning: dict, reference: dict, robustness: dict, complete: bool) -> dict[str, Any]:
     """Everything ``results.json`` holds: options, cells with each method's exact config, summaries."""
     return {
-        "complete": complete, "episodes": a.episodes, "seed": a.seed, "levels": levels,
+        "complete": complete, "episodes": a.episodes, "seed": a.seed, "levels": levels, "set": a.set,
         "checkpoints": a.checkpoints, "methods": [n for n, _, _ in methods],
         "cells": [{**asdict(c), "configs": {n: to_dict(cfg) for n, cfg in cfgs[c.label].items()}} for c in cells],
         "results": results, "planning": planning, "shortest_paths": reference,
@@ -308,6 +313,8 @@ def main(argv: list[str]) -> dict[str, Any]:
     p.add_argument("--seed", type=int, default=SEED_BASE, help=f"seed of the first cell (default {SEED_BASE}); cell i adds {SEED_STRIDE} * i")
     p.add_argument("--perturb", nargs="*", default=None, metavar="NAME",
                    help=f"also play every cell under each perturbation (none given: all of {' '.join(PERTURBATIONS)})")
+    p.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                   help="task overrides for every method, e.g. robot.preset=jackal randomize.delay=[1,1] (each checkpoint's own config otherwise)")
     p.add_argument("--out", default="runs/benchmark", help="output directory (default runs/benchmark)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--threads", type=B.threads_arg, default="auto", help="torch CPU threads: auto (the cores other processes leave free) or a number")
@@ -350,7 +357,7 @@ def main(argv: list[str]) -> dict[str, Any]:
         if name not in PERTURBATIONS:
             p.error(f"--perturb: unknown perturbation {name!r}; known: {', '.join(PERTURBATIONS)}")
     B.ThreadGovernor(a.threads)
-    methods, base = load_methods(a.checkpoints, a.controllers)
+    methods, base = load_methods(a.checkpoints, a.controllers, parse_sets(p, "--set", a.set))
     # Every cell's configs (and the scenario check of each checkpoint) before any episode runs.
     cfgs = {c.label: dict(zip([n for n, _, _ in methods], method_configs(methods, base, c.config, CHECK_EPISODES, c.seed, c.label)))
             for c in cells}

@@ -23,7 +23,7 @@ import argparse
 import json
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import torch
@@ -39,22 +39,25 @@ from torchnav.evaluation import (FINAL_EVAL_SEED, bind_policy, eval_config, outc
 from torchnav.maps import MapError, load_map
 from torchnav.policy import load_policy
 from torchnav.tasks import NavConfig
+from torchnav.tasks.robots import override_config
 
 DEFAULT_MAPS = ("arena", "warehouse", "maze")
 
 
-def load_methods(checkpoints: list[str], controllers: list[str]) -> tuple[list[tuple[str, Any, NavConfig | None]], NavConfig]:
-    """``[(name, policy, own config or None)]`` and the config the controllers use."""
-    methods, base = [], None
+def load_methods(checkpoints: list[str], controllers: list[str], task_set: Mapping[str, Any] | None = None
+                 ) -> tuple[list[tuple[str, Any, NavConfig | None]], NavConfig]:
+    """``[(name, policy, own config or None)]`` and the config the controllers use (the first
+    checkpoint's, else the defaults); ``task_set`` (nested task keys, ``--set``) is laid over each."""
+    methods, base, task_set = [], None, dict(task_set or {})
     for path in checkpoints:
         sp = load_policy(path)
         if sp.task != "nav":
             raise ValueError(f"{path}: a {sp.task!r} policy, not a navigation policy")
-        cfg = sp.config()
+        cfg = NavConfig.from_dict(override_config(sp.task_config, task_set), where=f"--set on {path}") if task_set else sp.config()
         base = base or cfg
         name = Path(path).stem if Path(path).stem not in ("actor", "checkpoint") else f"{sp.algorithm}:{Path(path).parent.name}"
         methods.append((name, sp.policy, cfg))
-    base = base or NavConfig()
+    base = base or NavConfig.from_dict(task_set, where="--set")
     for name in controllers:
         methods.append((name, make_controller(name, nav=base), None))
     names = [m[0] for m in methods]

@@ -31,11 +31,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import builders as B  # noqa: E402
 
 from torchnav.checkpoint import write_atomic  # noqa: E402
-from torchnav.config import merge, to_dict  # noqa: E402
+from torchnav.config import to_dict  # noqa: E402
 from torchnav.controllers import CONTROLLERS, MULTI_CONTROLLERS, make_controller  # noqa: E402
 from torchnav.evaluation import FINAL_EVAL_SEED, load_episodes  # noqa: E402
 from torchnav.policy import load_policy  # noqa: E402
 from torchnav.protocol import PROTOCOLS  # noqa: E402
+from torchnav.tasks.robots import override_config  # noqa: E402
 from torchnav.train_config import parse_override  # noqa: E402
 
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "td3_arena_actor.pt"
@@ -154,10 +155,10 @@ def main(argv: list[str]) -> dict:
         p.error("--laps must be >= 1")
     trained = {} if sp is None else sp.task_config  # the task the checkpoint was trained on, or the defaults
     if task_name == "nav":  # the protocol moves it to the map (eval_config: procedural worlds off)
-        config = P.config_class.from_dict(merge(trained, over), where="--set")
+        config = P.config_class.from_dict(override_config(trained, over), where="--set")
         task = P(config, anywhere=not a.curriculum, map=a.map)
     else:
-        config = P.config_class.from_dict(merge(trained, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
+        config = P.config_class.from_dict(override_config(trained, {**over, **({P.place: a.map} if a.map else {})}), where="--set")
         task = P(config, laps=a.laps or 1) if task_name == "line" else P(config)
     if a.controller is not None:
         actor = make_controller(a.controller, nav=config, **parse_sets(p, "--gains", a.gains)).to(a.device)

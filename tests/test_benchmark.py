@@ -323,3 +323,21 @@ def test_perturb_plays_each_method_under_each_perturbation(tmp_path):
     assert (cfg.robot.lin_acc_max, cfg.robot.ang_acc_max) == (1.0, 3.0) and perturbed(NavConfig(), "delay").randomize.delay == (1, 1)
     with pytest.raises(ValueError, match="unknown perturbation 'wind'"):
         perturbed(NavConfig(), "wind")
+
+
+def test_set_lays_task_keys_over_every_method(tmp_path):
+    """--set changes every method's config, a checkpoint's and the controllers'; a preset there replaces the
+    checkpoint's saved body (which holds every robot key); a bad key is named before any episode."""
+    from torchnav.config import ConfigError
+
+    doc = benchmark.main([str(CKPT), "--maps", "arena", "--families", "--controllers", "reactive", "--episodes", "2", "--threads", "1",
+                          "--set", "robot.preset=turtlebot3_burger", "max_steps=40", "--out", str(tmp_path / "out")])
+    assert doc["set"] == ["robot.preset=turtlebot3_burger", "max_steps=40"]
+    configs = doc["cells"][0]["configs"]
+    assert set(configs) == {"td3_arena_actor", "reactive"}
+    for cfg in configs.values():
+        assert (cfg["robot"]["radius"], cfg["robot"]["v_max"], cfg["max_steps"]) == (0.105, 0.22, 40)
+    assert all(r["arena"]["episodes"] == 2 for r in doc["results"].values())
+    with pytest.raises(ConfigError, match=r"--set.robot: unknown key .nope."):
+        benchmark.main(["--maps", "arena", "--families", "--controllers", "reactive", "--set", "robot.nope=1", "--out", str(tmp_path / "bad")])
+    assert not (tmp_path / "bad").exists()

@@ -374,3 +374,26 @@ def test_a_recipe_override_chooses_a_robot_preset():
 
     recipe = load_config("td3_lidar", ["task.robot.preset=turtlebot3_burger"], Path(__file__).resolve().parent.parent / "recipes" / "configs")
     assert recipe.task.robot.v_max == 0.22 and recipe.task.robot.radius == 0.105 and recipe.task.randomize.delay == (1, 1)
+    # a preset on the command line replaces the file's body (the generalist's file sets omega_max: 2.0) ...
+    generalist = ["--config", str(Path(__file__).resolve().parent.parent / "recipes" / "configs" / "ppo_generalist.yaml")]
+    assert load_config("ppo_lidar", generalist).task.robot.omega_max == 2.0
+    assert load_config("ppo_lidar", generalist + ["task.robot.preset=jackal"]).task.robot.omega_max == 4.0
+    # ... and robot keys given beside it on the command line, in either order, win over the preset
+    for argv in (["task.robot.omega_max=3.0", "task.robot.preset=jackal"], ["task.robot.preset=jackal", "task.robot.omega_max=3.0"]):
+        robot = load_config("ppo_lidar", generalist + argv).task.robot
+        assert (robot.omega_max, robot.v_max, robot.radius) == (3.0, 2.0, 0.267)
+
+
+def test_a_preset_over_a_saved_config_replaces_its_body():
+    """A saved config (a checkpoint's) holds every robot key; override_config lets a preset laid over
+    it change the body, keeps the keys given beside it and what is not the body (dt, randomize)."""
+    from torchnav.tasks.robots import BODY_KEYS, ROBOT_PRESETS, override_config
+
+    saved = to_dict(NavConfig.from_dict({"robot": {"omega_max": 2.0, "dt": 0.05}, "randomize": {"dropout": [0.0, 0.1]}}))
+    jackal = NavConfig.from_dict(override_config(saved, {"robot": {"preset": "jackal"}}))
+    assert all(getattr(jackal.robot, k) == ROBOT_PRESETS["jackal"][0][k] for k in BODY_KEYS)
+    assert jackal.robot.dt == 0.05 and jackal.randomize.dropout == (0.0, 0.1) and jackal.randomize.delay == (1, 1)
+    given = NavConfig.from_dict(override_config(saved, {"robot": {"preset": "jackal", "v_max": 1.0}, "max_steps": 99}))
+    assert (given.robot.v_max, given.robot.omega_max, given.max_steps) == (1.0, 4.0, 99)
+    assert NavConfig.from_dict(override_config(saved, {"robot": {"preset": "default"}})).robot.omega_max == 1.0
+    assert NavConfig.from_dict(override_config(saved, {"robot": {"v_max": 0.5}})).robot.omega_max == 2.0  # no preset: a merge

@@ -79,6 +79,10 @@ def test_base_file_lays_its_changes_over_another(tmp_path):
     (tmp_path / "c.yaml").write_text("base: sub/b.yaml\nseed: 5\n")
     cfg = L.load_config("td3_lidar", ["--config", str(tmp_path / "c.yaml"), "task.robot.v_max=0.7"])
     assert (cfg.seed, cfg.task.max_steps, cfg.task.robot.v_max, cfg.task.robot.omega_max) == (5, 300, 0.7, 3.0)
+    # a preset in the file replaces its base's body; robot keys beside it win
+    (tmp_path / "d.yaml").write_text("base: a.yaml\ntask:\n  robot: {preset: turtlebot3_burger, omega_max: 1.5}\n")
+    robot = L.load_config("td3_lidar", ["--config", str(tmp_path / "d.yaml")]).task.robot
+    assert (robot.v_max, robot.omega_max, robot.radius) == (0.22, 1.5, 0.105)
     cases = {"base: nowhere.yaml\n": r"config file not found: .*nowhere.yaml \(the base of .*bad.yaml\)",
              "base: bad.yaml\n": r"base: bad.yaml is a cycle",
              "base: [a.yaml]\n": r"base: expected the path of the config file this one changes",

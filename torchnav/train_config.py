@@ -41,6 +41,7 @@ from .config import (Config, ConfigError, checked, count, discount, flag, from_d
                      probability, real, sizes, to_dict)
 from .policy import RECURRENT
 from .tasks import LineConfig, MultiNavConfig, NavConfig
+from .tasks.robots import BODY_KEYS, override_config
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "recipes" / "configs"  # the recipes' YAML files in a source checkout
 
@@ -467,8 +468,15 @@ def build(name: str, data: dict[str, Any], overrides: Iterable[str] = (), source
     if not isinstance(data, dict):
         raise ConfigError(f"{source}: expected a mapping of config sections, got {type(data).__name__}")
     data = copy.deepcopy(data)
-    for text in overrides:
-        _put(cls, data, *parse_override(text))
+    parsed = [parse_override(text) for text in overrides]
+    given = {key for key, _ in parsed}
+    for key, value in parsed:
+        robot = (data.get("task") or {}).get("robot") if isinstance(data.get("task"), dict) else None
+        if key == "task.robot.preset" and isinstance(robot, dict):  # the preset replaces the file's body (override_config)
+            for k in BODY_KEYS:
+                if f"task.robot.{k}" not in given:
+                    robot.pop(k, None)
+        _put(cls, data, key, value)
     if run_dir is not None:
         _put(cls, data, "logger.run_dir", str(run_dir))
     return from_dict(cls, data, where="")
@@ -481,8 +489,10 @@ def read_config_file(path: Path | str, _chain: tuple[Path, ...] = ()) -> dict[st
     """A config file's content, with the files of its ``base:`` chain laid under it.
 
     ``base: FILE`` (a path relative to the file) makes the file a list of changes to FILE's config:
-    mappings merge key by key, so a section given in the file changes only the keys it names
-    (``recipes/configs/ppo_generalist_jackal.yaml`` starts from ``ppo_generalist.yaml``)."""
+    mappings merge key by key, so a section given in the file changes only the keys it names, except
+    that a ``task.robot.preset`` given in the file replaces the base's robot body
+    (``torchnav.tasks.robots.override_config``; ``recipes/configs/ppo_generalist_jackal.yaml`` starts
+    from ``ppo_generalist.yaml``)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"config file not found: {path}" + (f" (the base of {_chain[-1]})" if _chain else ""))
@@ -501,7 +511,11 @@ def read_config_file(path: Path | str, _chain: tuple[Path, ...] = ()) -> dict[st
     base_path = path.parent / base
     if base_path.resolve() in chain:
         raise ConfigError(f"{path}: {BASE_KEY}: {base} is a cycle: {' -> '.join(str(p) for p in chain)} -> {base_path.resolve()}")
-    return merge(read_config_file(base_path, chain), data)
+    under = read_config_file(base_path, chain)
+    if isinstance(under.get("task"), dict) and isinstance(data.get("task"), dict):  # a robot.preset given here replaces the base's body
+        data = {**data, "task": override_config(under["task"], data["task"])}
+        under = {k: v for k, v in under.items() if k != "task"}
+    return merge(under, data)
 
 
 def load_config(name: str, argv: list[str], config_dir: Path | str | None = None) -> Recipe:

@@ -36,6 +36,23 @@ ROBOT_PRESETS: dict[str, tuple[dict[str, float], int]] = {
 # The delay: none of the sources gives a command-to-motion latency; one control step (0.1 s) is an assumption.
 
 
+BODY_KEYS = ("radius", "track_width", "v_max", "omega_max", "lin_acc_max", "ang_acc_max")  # what a preset sets
+
+
+def override_config(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """A navigation config ``base`` (a dict: a checkpoint's saved task config) with the overrides
+    ``over`` laid over it (``torchnav.config.merge``). A ``robot.preset`` in ``over`` replaces the
+    base's body (:data:`BODY_KEYS`): the saved config holds every robot key, and as keys given beside
+    a preset they would win over it, so the preset would change nothing. The robot keys ``over`` gives
+    still win over its preset; ``dt``, the integrator, odometry noise and ``randomize`` stay the base's."""
+    from ..config import merge
+
+    robot = over.get("robot")
+    if isinstance(robot, Mapping) and "preset" in robot and isinstance(base.get("robot"), Mapping):
+        base = {**base, "robot": {k: v for k, v in base["robot"].items() if k not in BODY_KEYS}}
+    return merge(base, over)
+
+
 def with_robot_preset(data: Mapping[str, Any] | None) -> dict[str, Any] | None:
     """``data`` (a navigation config as a dict) with its ``robot.preset``'s values under the keys it gives;
     unchanged without a preset, or with an unknown one (which ``RobotConfig`` then names)."""
@@ -53,4 +70,4 @@ def with_robot_preset(data: Mapping[str, Any] | None) -> dict[str, Any] | None:
     return out
 
 
-__all__ = ["ROBOT_PRESETS", "with_robot_preset"]
+__all__ = ["BODY_KEYS", "ROBOT_PRESETS", "override_config", "with_robot_preset"]
