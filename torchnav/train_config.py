@@ -41,7 +41,7 @@ from .config import (Config, ConfigError, checked, count, discount, flag, from_d
                      probability, real, sizes, to_dict)
 from .policy import RECURRENT
 from .tasks import LineConfig, MultiNavConfig, NavConfig
-from .tasks.robots import BODY_KEYS, override_config
+from .tasks.robots import override_config, without_body
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "recipes" / "configs"  # the recipes' YAML files in a source checkout
 
@@ -469,13 +469,11 @@ def build(name: str, data: dict[str, Any], overrides: Iterable[str] = (), source
         raise ConfigError(f"{source}: expected a mapping of config sections, got {type(data).__name__}")
     data = copy.deepcopy(data)
     parsed = [parse_override(text) for text in overrides]
-    given = {key for key, _ in parsed}
+    given = {key.removeprefix("task.robot.") for key, _ in parsed if key.startswith("task.robot.")}
+    task = data.get("task")
+    if "preset" in given and isinstance(task, dict) and isinstance(task.get("robot"), dict):
+        task["robot"] = without_body(task["robot"], keep=given)  # the preset replaces the file's body (override_config)
     for key, value in parsed:
-        robot = (data.get("task") or {}).get("robot") if isinstance(data.get("task"), dict) else None
-        if key == "task.robot.preset" and isinstance(robot, dict):  # the preset replaces the file's body (override_config)
-            for k in BODY_KEYS:
-                if f"task.robot.{k}" not in given:
-                    robot.pop(k, None)
         _put(cls, data, key, value)
     if run_dir is not None:
         _put(cls, data, "logger.run_dir", str(run_dir))
@@ -512,10 +510,10 @@ def read_config_file(path: Path | str, _chain: tuple[Path, ...] = ()) -> dict[st
     if base_path.resolve() in chain:
         raise ConfigError(f"{path}: {BASE_KEY}: {base} is a cycle: {' -> '.join(str(p) for p in chain)} -> {base_path.resolve()}")
     under = read_config_file(base_path, chain)
+    merged = merge(under, data)
     if isinstance(under.get("task"), dict) and isinstance(data.get("task"), dict):  # a robot.preset given here replaces the base's body
-        data = {**data, "task": override_config(under["task"], data["task"])}
-        under = {k: v for k, v in under.items() if k != "task"}
-    return merge(under, data)
+        merged["task"] = override_config(under["task"], data["task"])
+    return merged
 
 
 def load_config(name: str, argv: list[str], config_dir: Path | str | None = None) -> Recipe:

@@ -11,7 +11,7 @@ conservative disc: the smallest disc about its rotation centre that holds its fo
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 # name -> (robot values, actuator delay in steps of robot.dt)
 ROBOT_PRESETS: dict[str, tuple[dict[str, float], int]] = {
@@ -49,8 +49,15 @@ def override_config(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[st
 
     robot = over.get("robot")
     if isinstance(robot, Mapping) and "preset" in robot and isinstance(base.get("robot"), Mapping):
-        base = {**base, "robot": {k: v for k, v in base["robot"].items() if k not in BODY_KEYS}}
+        base = {**base, "robot": without_body(base["robot"])}
     return merge(base, over)
+
+
+def without_body(robot: Mapping[str, Any], keep: Iterable[str] = ()) -> dict[str, Any]:
+    """A ``robot`` section without its body (:data:`BODY_KEYS`) but for ``keep``: what a preset laid
+    over it leaves of it."""
+    keep = set(keep)
+    return {k: v for k, v in robot.items() if k not in BODY_KEYS or k in keep}
 
 
 def with_robot_preset(data: Mapping[str, Any] | None) -> dict[str, Any] | None:
@@ -70,4 +77,4 @@ def with_robot_preset(data: Mapping[str, Any] | None) -> dict[str, Any] | None:
     return out
 
 
-__all__ = ["BODY_KEYS", "ROBOT_PRESETS", "override_config", "with_robot_preset"]
+__all__ = ["BODY_KEYS", "ROBOT_PRESETS", "override_config", "with_robot_preset", "without_body"]
