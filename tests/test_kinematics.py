@@ -301,3 +301,94 @@ def test_the_guarded_robot_with_bounded_braking_stops_short_of_a_wall():
         assert not td["next", "collision"].any()
         td = td["next"]
     assert 4.0 < env.state.sim.pose[0, 0].item() < 5.0 - 0.2  # drove up to the wall and stopped short of it
+
+
+def _first_touch(x: float, y: float, curvature: float, reach: float, length: float = 30.0) -> float:
+    """Brute force: the first arc length (1e-4 m grid) at which the disc centre on the circle of ``curvature`` comes within
+    ``reach`` of ``(x, y)``; inf if it never does within ``length`` m or one turn."""
+    s = torch.linspace(0.0, length, 300_001, dtype=F64)
+    cx, cy = (s, torch.zeros_like(s)) if curvature == 0 else (torch.sin(curvature * s) / curvature, (1 - torch.cos(curvature * s)) / curvature)
+    hit = (torch.hypot(cx - x, cy - y) < reach).nonzero()
+    turn = 2 * math.pi / abs(curvature) if curvature else math.inf
+    return s[hit[0, 0]].item() if len(hit) and s[hit[0, 0]].item() < turn else math.inf
+
+
+def test_arc_free_length_against_brute_force():
+    from torchnav.sim.kinematics import arc_free_length
+
+    g = torch.Generator().manual_seed(0)
+    reach, checked = 0.3, 0
+    for i in range(350):
+        x, y = (torch.rand(2, generator=g, dtype=F64) * 6 - 3).tolist()
+        k = (0.3, -0.3, 2.0, -2.0, 8.0, -5.0, 1e-7)[i % 7]
+        if math.hypot(x, y) < reach:
+            continue
+        want = _first_touch(x, y, 0.0 if k == 1e-7 else k, reach)
+        got = arc_free_length(*(torch.tensor(v, dtype=F64) for v in (x, y, k, reach))).item()
+        if k != 1e-7 and got >= 2 * math.pi / abs(k):
+            got = math.inf
+        if math.isinf(want) and k == 1e-7:
+            assert got > 29.9 or math.isinf(got), (x, y, k)
+        elif math.isinf(want):
+            assert math.isinf(got), (x, y, k, got)
+        else:
+            assert got == pytest.approx(want, abs=2e-4), (x, y, k)
+            checked += 1
+    assert checked >= 20  # enough points lie on the paths
+
+
+def test_arc_free_length_near_the_start_and_straight():
+    from torchnav.sim.kinematics import arc_free_length
+
+    t = lambda *v: torch.tensor(v, dtype=torch.float32)  # noqa: E731
+    reach = t(0.25)
+    # already within reach: 0 if the first motion approaches it, inf if it leaves it
+    assert arc_free_length(t(0.1), t(0.1), t(2.0), reach).tolist() == [0.0]
+    assert arc_free_length(t(-0.1), t(0.1), t(2.0), reach).tolist() == [math.inf]
+    # a vanishing curvature is the straight corridor: x - sqrt(reach^2 - y^2), in float32 too
+    got = arc_free_length(t(1.0, 2.0, 3.0), t(0.0, 0.2, -0.3), t(0.0, 1e-9, -1e-8), reach)
+    assert got[:2].tolist() == pytest.approx([0.75, 2.0 - math.sqrt(0.25**2 - 0.2**2)], abs=1e-5)
+    assert math.isinf(got[2])
+
+
+def test_arc_speed_guard_caps_a_turn_into_a_return():
+    """Straight ahead the arc guard is the straight-line guard; turning towards a return beside the path
+    it slows the robot, turning away it does not."""
+    from torchnav.sim.kinematics import arc_free_length, arc_speed_guard, forward_speed_guard, stopping_speed
+
+    lidar = _guard_scan("rays", 8)  # rays every 45 degrees from behind
+    ranges = torch.full((3, 8), 10.0, dtype=F64)
+    ranges[:, 5] = 0.8  # a return at 45 degrees left, 0.8 m away: beside the straight corridor
+    ranges[0, 4] = 1.2  # and one 1.2 m ahead for the first env
+    twist = torch.tensor([[2.0, 0.0], [2.0, 4.0], [2.0, -4.0]], dtype=F64)
+    dt, decel, delay = 0.1, 2.0, 1
+    straight = forward_speed_guard(ranges, lidar, 0.25, 0.05, dt, decel=decel, delay=delay)
+    v = arc_speed_guard(ranges, lidar, 0.25, 0.05, dt, twist, decel=decel, delay=delay)
+    assert straight[0] < 2.0 and v[0].item() == pytest.approx(straight[0].item())  # straight: the same bound
+    assert math.isinf(straight[1]) and v[1] < 1.5  # turning left into it: slowed
+    assert v[2].item() == 2.0  # turning right, away from it: the command
+    one = arc_speed_guard(ranges, lidar, 0.25, 0.05, dt, twist, decel=decel, delay=delay, passes=1)
+    x, y = 0.8 * math.cos(math.pi / 4), 0.8 * math.sin(math.pi / 4)
+    free = arc_free_length(*(torch.tensor(a, dtype=F64) for a in (x, y, 4.0 / 2.0, 0.3)))
+    assert one[1].item() == pytest.approx(stopping_speed(free, (1 + delay) * dt, decel).item())  # one pass: the command's arc
+    assert v[1] <= one[1]  # each pass at the slower speed's tighter arc only lowers it
+
+
+@pytest.mark.parametrize("start_y", [4.2, 4.4])
+def test_the_arc_guard_keeps_a_hard_turn_off_the_wall(start_y):
+    """Full speed and full turn towards a wall the robot drives beside, with 2 m/s^2 and a two-step delay: the
+    straight-line guard sees the wall too late and hits it; the guard that checks the arc does not."""
+    from torchnav.envs import make_nav_env
+
+    hits = {}
+    for path in ("straight", "arc"):
+        env = make_nav_env("empty", num_envs=1, seed=0, robot={"v_max": 2.0, "omega_max": 4.0, "lin_acc_max": 2.0},
+                           randomize={"delay": [2, 2]}, action={"stop_clearance": 0.05, "stop_path": path}, max_steps=200)
+        td = env.reset_to(torch.tensor([[0.0, start_y, 0.0]]), torch.tensor([[-3.0, -3.0]]))  # the wall at y = 5 on the left
+        hits[path] = False
+        for _ in range(40):
+            td["action"] = torch.tensor([[1.0, 1.0]])
+            td = env.step(td)
+            hits[path] |= bool(td["next", "collision"].any())
+            td = td["next"]
+    assert hits == {"straight": True, "arc": False}

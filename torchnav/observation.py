@@ -27,7 +27,7 @@ import torch
 from torch import Tensor
 
 from .sim import LidarParams, SimParams, apply_limits, safe_hypot, sectorize, wrap_angle
-from .sim.kinematics import forward_speed_guard, guard_bearings
+from .sim.kinematics import arc_speed_guard, forward_speed_guard, guard_bearings
 
 if TYPE_CHECKING:
     from .tasks.config import NavConfig
@@ -152,15 +152,21 @@ def command(cfg: "NavConfig", action: Tensor, twists: Tensor, dtype: torch.dtype
 
 
 def guarded(cfg: "NavConfig", twist: Tensor, ranges: Tensor, lidar: LidarParams, radius: Tensor | float, dt: float,
-            bearings: Tensor | None) -> Tensor:
+            bearings: Tensor | None, pending: Tensor | None = None) -> Tensor:
     """``twist`` ``(B, 2)`` with its forward speed capped by the speed guard (``action.stop_clearance``;
-    ``forward_speed_guard`` on the scan ``ranges`` ``(B, R)`` the policy saw, braking and delay from
-    :func:`guard_dynamics`); unchanged when the guard is off."""
+    ``forward_speed_guard``, or ``arc_speed_guard`` with ``action.stop_path: arc``, on the scan ``ranges``
+    ``(B, R)`` the policy saw, braking and delay from :func:`guard_dynamics`; ``pending`` ``(B, K, 2)``: the commands
+    sent before, newest first, which the arc guard drives first under a delay); unchanged when the guard is off."""
     if cfg.action.stop_clearance is None:
         return twist
     decel, delay = guard_dynamics(cfg)
-    cap = forward_speed_guard(ranges, lidar, radius, cfg.action.stop_clearance, dt, bearings, decel=decel, delay=delay)
-    return torch.stack((torch.minimum(twist[:, 0], cap), twist[:, 1]), dim=-1)
+    if cfg.action.stop_path == "arc":
+        v = arc_speed_guard(ranges, lidar, radius, cfg.action.stop_clearance, dt, twist, bearings, decel=decel, delay=delay,
+                            pending=pending)
+    else:
+        v = torch.minimum(twist[:, 0], forward_speed_guard(ranges, lidar, radius, cfg.action.stop_clearance, dt, bearings,
+                                                           decel=decel, delay=delay))
+    return torch.stack((v, twist[:, 1]), dim=-1)
 
 
 def guard_dynamics(cfg: "NavConfig") -> tuple[float, int]:

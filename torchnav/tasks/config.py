@@ -175,13 +175,18 @@ class ActionConfig(Config):
     # m or None: a guard caps the forward speed so that the robot's disc stops this far short of every
     # lidar return in its path within the step (docs/tasks.md#speed-guard); None: off
     stop_clearance: float | None = optional(lambda v: is_number(v) and v >= 0, "a finite number of metres >= 0")
+    # the path the guard checks: "straight" (the step's arc as a straight line) or "arc" (the command's
+    # arc, braking along it: for fast robots that turn hard, docs/tasks.md#speed-guard)
+    stop_path: str = one_of("straight", "arc", default="straight")
     # (v, omega) as fractions of (v_max, omega_max), for mode "discrete"
     discrete_set: tuple[tuple[float, float], ...] = (
         (1.0, 0.0), (1.0, 0.5), (1.0, -0.5), (0.5, 1.0), (0.5, -1.0), (0.0, 1.0), (0.0, -1.0),
     )
 
     def checks(self) -> list[tuple[bool, str]]:
-        return [(len(self.discrete_set) >= 2, f"discrete_set needs at least 2 actions, got {len(self.discrete_set)}")]
+        return [(len(self.discrete_set) >= 2, f"discrete_set needs at least 2 actions, got {len(self.discrete_set)}"),
+                (self.stop_path == "straight" or self.stop_clearance is not None,
+                 f"stop_path={self.stop_path!r} is the speed guard's, which is off: set stop_clearance too")]
 
 
 @dataclass(frozen=True)
