@@ -98,7 +98,7 @@ def bench_cell(args, map_path: str, map_name: str, n: int, compiled: bool) -> li
     static = task.static
     out = [_rec(args, map_name, n, "build", compiled, seconds=round(build_s, 3), peak_mem_bytes=mem.bytes,
                 fixed_obstacles=task.spec.n_fixed, shared_map_bytes=static.nbytes() if static is not None else 0,
-                shared_map_slots=static.slots if static is not None else None, per_env_world_bytes=_world_bytes(s.world) // n)]
+                shared_map_slots={k: v.slots for k, v in static.lists.items()} if static is not None else None, per_env_world_bytes=_world_bytes(s.world) // n)]
 
     g = torch.Generator(device=args.device).manual_seed(args.seed)
     twists = [task.command(2 * torch.rand(n, 2, generator=g, device=args.device) - 1) for _ in range(8)]

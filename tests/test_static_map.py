@@ -43,24 +43,26 @@ def _poses(n: int, seed: int = 1, dtype=torch.float64) -> torch.Tensor:
     return lo + (hi - lo) * torch.rand(n, 3, generator=g, dtype=dtype)
 
 
-def _both(params, obstacles, n: int, dtype=torch.float64, cell=None):
+def _both(params, obstacles, n: int, dtype=torch.float64, cell=None, march=False):
     """The same envs twice: every obstacle in every env's world, and the obstacles in a StaticMap
-    with one per-env random box in the world."""
+    with one per-env random box in the world (``march``: reach lists as short as a ray scan that
+    marches past them needs)."""
     segments, circles, boxes = (o.to(dtype) for o in obstacles)
     extra = torch.tensor([[0.5, -0.5, 0.3, 0.2, 0.4]], dtype=dtype)
     full = make_world(n, segments, circles, torch.cat((boxes, extra)), dtype=dtype)
     dyn = pad_world(make_world(n, dtype=dtype), boxes=1)
     dyn.boxes[:, 0] = extra[0]
     dyn.box_mask[:, 0] = True
-    static = build_static_map(BOUNDS, segments, circles, boxes, reach=static_reach(params), cell=cell, dtype=dtype)
+    static = build_static_map(BOUNDS, segments, circles, boxes, reach=static_reach(params, march), cell=cell, dtype=dtype)
     return full, dyn, static
 
 
-@pytest.mark.parametrize("scan", ["rays", "sectors"])
+@pytest.mark.parametrize("scan, march", [("rays", False), ("rays", True), ("sectors", False)])
 @pytest.mark.parametrize("cell", [None, 0.7])
-def test_step_reads_the_same_as_every_obstacle_in_every_env(scan, cell):
+def test_step_reads_the_same_as_every_obstacle_in_every_env(scan, march, cell):
     params = _params(scan, offset=(0.1, 0.05, 0.2))
-    full, dyn, static = _both(params, _obstacles(), 300, cell=cell)
+    full, dyn, static = _both(params, _obstacles(), 300, cell=cell, march=march)
+    assert static.reach == pytest.approx(static_reach(params, march))
     assert static.slots["boxes"] < 40 and static.slots["circles"] < 25  # the lists are shorter than the map
     pose = _poses(300)
     a, b = init_state(pose, full, params), init_state(pose, dyn, params, static=static)
@@ -92,7 +94,8 @@ def test_clearance_of_points_is_the_whole_maps():
     assert torch.equal(static_clearance(static, pts, chunk=7), want)  # chunking changes nothing
 
 
-def test_image_map_boxes():
+@pytest.mark.parametrize("march", [False, True])
+def test_image_map_boxes(march):
     """An occupancy image's boxes (many, touching, axis-aligned), in float32 as the tasks use them."""
     rng = np.random.default_rng(0)
     mask = np.zeros((160, 240), bool)
@@ -102,7 +105,7 @@ def test_image_map_boxes():
     boxes = torch.tensor(mask_boxes(mask, 0.05, (-6.0, -4.0)))
     assert len(boxes) > 128  # more than the broad phase's threshold: the full world scans through it
     params = _params(max_range=2.5)
-    full, dyn, static = _both(params, (WALLS, torch.zeros(0, 3), boxes), 256, dtype=torch.float32)
+    full, dyn, static = _both(params, (WALLS, torch.zeros(0, 3), boxes), 256, dtype=torch.float32, march=march)
     pose = _poses(256, seed=7, dtype=torch.float32)
     a, b = init_state(pose, full, params), init_state(pose, dyn, params, static=static)
     assert torch.equal(a.clearance, b.clearance)
@@ -110,9 +113,10 @@ def test_image_map_boxes():
     assert torch.allclose(a.ranges, b.ranges, rtol=0, atol=1e-4)
 
 
-def test_gradients_to_the_pose_are_the_same():
+@pytest.mark.parametrize("march", [False, True])
+def test_gradients_to_the_pose_are_the_same(march):
     params = _params()
-    full, dyn, static = _both(params, _obstacles(seed=8), 64)
+    full, dyn, static = _both(params, _obstacles(seed=8), 64, march=march)
     pose_a = _poses(64, seed=9).requires_grad_()
     pose_b = pose_a.detach().clone().requires_grad_()
     a, b = init_state(pose_a, full, params), init_state(pose_b, dyn, params, static=static)
@@ -123,9 +127,10 @@ def test_gradients_to_the_pose_are_the_same():
     torch.testing.assert_close(pose_a.grad, pose_b.grad, rtol=1e-12, atol=1e-12)
 
 
-def test_batch_equals_one_env_at_a_time():
+@pytest.mark.parametrize("march", [False, True])
+def test_batch_equals_one_env_at_a_time(march):
     params = _params()
-    _, dyn, static = _both(params, _obstacles(seed=10), 16)
+    _, dyn, static = _both(params, _obstacles(seed=10), 16, march=march)
     pose = _poses(16, seed=11)
     batch = init_state(pose, dyn, params, static=static)
     for i in range(16):
@@ -159,6 +164,8 @@ def test_memory_does_not_grow_with_envs():
     ({"reach": math.inf}, "reach"),
     ({"cell": 0.0}, "cell"),
     ({"cell": math.nan}, "cell"),
+    ({"ray_cell": -0.1}, "ray_cell"),
+    ({"boxes": torch.tensor([[0.0, math.inf, 1.0, 1.0, 0.0]])}, "boxes must be finite"),
 ])
 def test_bad_arguments_are_named(kwargs, match):
     args = {"bounds": BOUNDS, "reach": 1.0, **kwargs}
@@ -207,3 +214,47 @@ def test_auto_shares_big_maps_only(tmp_path):
     assert make_nav_env(str(tmp_path / "many.yaml"), 4).task.static is not None
     assert make_nav_env("arena", 4).task.static is None
     assert make_nav_env(str(tmp_path / "many.yaml"), 4, shared_map="off").task.static is None
+
+
+def test_march_alone_equals_every_ray_against_every_obstacle():
+    """No reach lists at all: every ray marches from its origin, from inside the map and from outside
+    its grid (rays that enter it and rays that miss it)."""
+    from torchnav.sim.raycast import cast_rays
+    from torchnav.sim.static_map import static_ray_hits
+
+    segments, circles, boxes = _obstacles(seed=13)
+    static = build_static_map(BOUNDS, segments, circles, boxes, reach=0.0, dtype=torch.float64)
+    assert static.reach_lists is None and static.ray_lists.slots["boxes"] < len(boxes)
+    g = torch.Generator().manual_seed(14)
+    origin = torch.cat((_poses(200, seed=15)[:, :2], torch.tensor([[9.0, 0.5], [-8.0, -6.0], [0.0, 7.0]], dtype=torch.float64)))
+    angles = (2 * torch.rand(len(origin), 24, generator=g, dtype=torch.float64) - 1) * math.pi
+    want = cast_rays(origin, angles, make_world(len(origin), segments, circles, boxes, dtype=torch.float64))
+    for max_range in (2.0, 30.0):
+        got = static_ray_hits(static, origin, angles, max_range)
+        assert torch.equal(got, torch.where(want < max_range, want, math.inf))
+    assert torch.isfinite(got[-3:]).any() and torch.isinf(got[-3:]).any()  # from outside: some rays enter the grid, some miss it
+    done = torch.rand(angles.shape, generator=g) < 0.5
+    assert torch.equal(static_ray_hits(static, origin, angles, 30.0, done=done), torch.where(done, math.inf, got))
+
+
+@pytest.mark.slow  # compiles the step and the march (about a minute)
+def test_compiled_step_marches_as_eager():
+    params = _params(max_range=4.0)
+    full, dyn, static = _both(params, _obstacles(seed=16), 128, dtype=torch.float32, march=True)
+    pose = _poses(128, seed=17, dtype=torch.float32)
+    twist = torch.tensor([0.4, 0.7]).expand(128, 2)
+    a = init_state(pose, dyn, params, static=static)
+    b = torch.compile(step)(a, twist, dyn, params, static=static)
+    a = step(a, twist, dyn, params, static=static)
+    assert torch.allclose(a.ranges, b.ranges, rtol=0, atol=1e-5) and torch.equal(a.collided, b.collided)
+    assert ((a.ranges > 2.0) & (a.ranges < 4.0)).any()  # some returns come from the march
+
+
+def test_sensors_that_see_past_the_reach_lists_are_refused():
+    params = _params("sectors")
+    _, dyn, static = _both(_params("rays"), _obstacles(), 4, march=True)  # built for a marching ray scan
+    with pytest.raises(ValueError, match="reach lists reach"):
+        init_state(_poses(4), dyn, params, static=static)
+    clearance_only = build_static_map(BOUNDS, WALLS, reach=static_reach(_params("rays"), True), rays=False)
+    with pytest.raises(ValueError, match="no ray lists"):
+        init_state(_poses(4, dtype=torch.float32), pad_world(make_world(4), boxes=1), _params("rays"), static=clearance_only)

@@ -16,6 +16,7 @@ from .params import LidarParams
 from .raycast import RayFan, cast_fan, cast_rays, fan_is_exact, hit_box, hit_circle, hit_segment  # noqa: F401  (re-exported)
 from .sector_scan import sector_ranges
 from .state import World
+from .static_map import StaticMap, static_ray_hits
 
 
 def ray_origins_and_angles(pose: Tensor, lidar: LidarParams) -> tuple[Tensor, Tensor]:
@@ -57,6 +58,7 @@ def lidar_scan(
     generator: torch.Generator | None = None,
     unroll: bool | None = None,
     movers: World | None = None,
+    static: StaticMap | None = None,
 ) -> Tensor:
     """Lidar ranges in m, ``(B, n_rays)``, for robots at ``pose`` ``(B, 3)`` in ``world``.
 
@@ -69,12 +71,21 @@ def lidar_scan(
 
     ``movers`` is a second world (the moving obstacles, ``movers.mover_world``) scanned
     as well: the scan of the union of two worlds is the minimum of their scans.
+    ``static``: the map whose reach lists ``world`` holds (``static_map.with_static``). A ray scan
+    reads them as far as they reach and marches the rays that hit nothing there through the map's
+    ray lists (:func:`~torchnav.sim.static_map.static_ray_hits`); its hits beyond ``max_range`` read
+    as misses, so with range noise a return just past the range is never pulled back into it. The
+    sector scan needs reach lists that reach ``max_range`` (``static_map.static_reach``).
     """
     fan = lidar_fan(pose, lidar)
     scan = sector_ranges if lidar.scan == "sectors" else cast_fan
     ranges = scan(fan, world, lidar.window, lidar.dense_slots, unroll)
     if movers is not None:
         ranges = torch.minimum(ranges, scan(fan, movers, lidar.window, lidar.dense_slots, unroll))
+    if static is not None and lidar.scan == "rays":  # the map past its reach lists (in `world`): marched
+        start = max(0.0, static.reach - math.hypot(*lidar.offset[:2]))  # m from the sensor
+        if start < lidar.max_range:
+            ranges = torch.minimum(ranges, static_ray_hits(static, fan.origin, fan.angles, lidar.max_range, start, ranges <= start))
     if lidar.noise_std > 0 and generator is not None:
         ranges = ranges + lidar.noise_std * torch.randn(ranges.shape, generator=generator, dtype=ranges.dtype, device=ranges.device)
     return ranges.clamp(lidar.min_range, lidar.max_range)

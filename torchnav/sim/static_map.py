@@ -30,36 +30,71 @@ import torch
 from torch import Tensor
 
 from .geometry import _box_dist, _circle_dist, segment_distance
+from .raycast import _box_rows, _hit_box_rows, hit_circle, hit_segment
 from .params import SimParams
 from .state import World
 
 # Most (cells, obstacles) distance elements computed at once while building the index.
 _BUILD_CHUNK = 1 << 22
 _KINDS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
-_IDS = {"segments": "segment_ids", "circles": "circle_ids", "boxes": "box_ids"}
 
 
 @dataclass(frozen=True, eq=False)
-class StaticMap:
-    """Fixed obstacles shared by every env of a batch, and the grid index of :func:`build_static_map`.
+class CellLists:
+    """A uniform grid of square cells, each listing some of a :class:`StaticMap`'s obstacles.
 
-    Obstacle tables are stored component-major with one extra zero column that empty list entries
-    point at: ``segments`` ``(4, S + 1)``, ``circles`` ``(3, C + 1)``, ``boxes`` ``(5, K + 1)`` (the
-    layouts of :class:`~torchnav.sim.state.World`, m and rad). ``*_ids`` ``(ny * nx, M)`` int64 list
-    each cell's obstacles of a kind (row ``j * nx + i`` is the cell ``i`` along x, ``j`` along y),
-    padded with the index of the zero column."""
+    ``ids[kind]`` ``(ny * nx, M)`` int64 lists each cell's obstacles of that kind (row ``j * nx + i``
+    is the cell ``i`` along x, ``j`` along y), padded with the index of the obstacle table's zero column."""
 
-    segments: Tensor
-    circles: Tensor
-    boxes: Tensor
-    segment_ids: Tensor
-    circle_ids: Tensor
-    box_ids: Tensor
+    ids: dict[str, Tensor]
     origin: tuple[float, float]  # m, the lower-left corner of cell (0, 0)
     cell: float  # m, the side of a cell
     nx: int
     ny: int
-    reach: float  # m, every obstacle this close to a cell is in its lists
+
+    @property
+    def slots(self) -> dict[str, int]:
+        """The longest list of each kind: the slots a world gathered from these lists holds."""
+        return {k: v.shape[1] for k, v in self.ids.items()}
+
+    def cells_of(self, xy: Tensor) -> Tensor:
+        """Index ``(...)`` int64 of the cell holding each point ``xy`` ``(..., 2)`` m (the nearest cell
+        for points outside the grid)."""
+        i = ((xy[..., 0] - self.origin[0]) / self.cell).floor().clamp(0, self.nx - 1).long()
+        j = ((xy[..., 1] - self.origin[1]) / self.cell).floor().clamp(0, self.ny - 1).long()
+        return j * self.nx + i
+
+    def nbytes(self) -> int:
+        return sum(t.numel() * t.element_size() for t in self.ids.values())
+
+
+@dataclass(frozen=True, eq=False)
+class StaticMap:
+    """Fixed obstacles shared by every env of a batch, and the grid indexes of :func:`build_static_map`.
+
+    Obstacle tables are stored component-major with one extra zero column that empty list entries
+    point at: ``segments`` ``(4, S + 1)``, ``circles`` ``(3, C + 1)``, ``boxes`` ``(5, K + 1)`` (the
+    layouts of :class:`~torchnav.sim.state.World`, m and rad). Three sets of cell lists index them:
+
+    * ``reach_lists``: every obstacle within ``reach`` of some point of the cell, and every one that
+      can be the nearest to some point of it (for the exact sector scan and the camera);
+    * ``near_lists``: every obstacle that can be the nearest to some point of the cell (clearance,
+      collision and the reset samplers' free-space tests);
+    * ``ray_lists`` and ``ray_step`` ``(cells,)`` m, on the same grid as ``near_lists``: a few of the
+      obstacles nearest to the cell, such that every obstacle left out is farther than ``ray_step``
+      from every point of the cell (:func:`static_ray_hits` marches rays with them).
+    """
+
+    segments: Tensor
+    circles: Tensor
+    boxes: Tensor
+    reach_lists: CellLists | None  # None when built with reach 0
+    near_lists: CellLists
+    ray_lists: CellLists | None  # None when built with rays=False
+    ray_step: Tensor | None
+    ray_rows: dict[str, Tensor] | None  # per kind (cells, w, M): each cell's listed obstacles as the hit functions take them
+    bounds: tuple[float, float, float, float]  # m, the near and ray grids': the map's bounds and every obstacle
+    reach: float  # m, every obstacle this close to a cell is in its reach list
 
     @property
     def n_obstacles(self) -> dict[str, int]:
@@ -68,20 +103,42 @@ class StaticMap:
 
     @property
     def slots(self) -> dict[str, int]:
-        """Per-env slots of each kind that :func:`local_world` gathers: the longest cell list."""
-        return {k: getattr(self, _IDS[k]).shape[1] for k, _, _ in _KINDS}
+        """Per-env slots of each kind that :func:`local_world` gathers: the longest reach list."""
+        return self._lists("reach").slots
+
+    @property
+    def lists(self) -> dict[str, CellLists]:
+        """The cell lists this map was built with, by name (``"reach"``, ``"near"``, ``"ray"``)."""
+        return {k: v for k, v in (("reach", self.reach_lists), ("near", self.near_lists), ("ray", self.ray_lists)) if v is not None}
 
     def nbytes(self) -> int:
-        """Bytes held by the obstacle tables and the index (the same for any number of envs)."""
-        return sum(t.numel() * t.element_size() for t in (self.segments, self.circles, self.boxes, self.segment_ids, self.circle_ids, self.box_ids))
+        """Bytes held by the obstacle tables and the indexes (the same for any number of envs)."""
+        lists = sum(c.nbytes() for c in (self.reach_lists, self.near_lists, self.ray_lists) if c is not None)
+        tables = (self.segments, self.circles, self.boxes) + ((self.ray_step, *self.ray_rows.values()) if self.ray_step is not None else ())
+        return lists + sum(t.numel() * t.element_size() for t in tables)
+
+    def _lists(self, which: str) -> CellLists:
+        """The ``"reach"``, ``"near"`` or ``"ray"`` lists; a ValueError names the build option that leaves them out."""
+        lists = {"reach": self.reach_lists, "near": self.near_lists, "ray": self.ray_lists}[which]
+        if lists is None:
+            raise ValueError("this StaticMap has no reach lists (built with reach=0: for clearance and ray scans only)" if which == "reach"
+                             else "this StaticMap has no ray lists (built with rays=False)")
+        return lists
 
 
-def static_reach(params: SimParams) -> float:
+MARCH_FROM = 1.5  # m from the sensor: a ray scan reads a static map's reach lists this far, and marches beyond
+
+
+def static_reach(params: SimParams, march: bool = False) -> float:
     """The distance (m) from a robot's centre that its sensors can see: the lidar's range plus its
     mount offset, or the camera's if it sees farther (its range is a depth along the optical axis, so
     its edge columns see ``1 / cos(fov / 2)`` times as far). A :class:`StaticMap` built with at least
-    this ``reach`` gives these params' lidar, camera and clearance exactly."""
-    reach = params.lidar.max_range + math.hypot(*params.lidar.offset[:2])
+    this ``reach`` gives these params' lidar, camera and clearance exactly. ``march``: the reach a ray
+    scan without a camera needs when it marches past ``MARCH_FROM`` m (``lidar.lidar_scan``)."""
+    mount = math.hypot(*params.lidar.offset[:2])
+    if march and params.lidar.scan == "rays" and params.camera is None:
+        return min(params.lidar.max_range, MARCH_FROM) + mount
+    reach = params.lidar.max_range + mount
     if params.camera is not None:
         cam = params.camera
         reach = max(reach, cam.max_range / math.cos(cam.fov / 2) + math.hypot(*cam.offset[:2]))
@@ -136,7 +193,58 @@ def _select(centres: Tensor, h: float, reach: float, tables: dict[str, Tensor], 
             for kind, p in parts.items()}
 
 
+def _nearest_lists(centres: Tensor, h: float, tables: dict[str, Tensor], cand: dict[str, Tensor], slots: int,
+                   step_min: float, step_max: float) -> tuple[dict[str, Tensor], Tensor]:
+    """Per kind, each point's ``slots`` nearest obstacles of that kind among the candidates ``cand``
+    (more where more lie within ``h + step_min``; padded as :func:`_select`'s), and the step ``(P,)``:
+    every obstacle left out is farther than it from every point of the square of half diagonal ``h``
+    around the point. ``cand`` must hold every obstacle within ``step_max`` of that square."""
+    width = max(1, *(c.shape[1] for c in cand.values()))
+    chunk = max(1, _BUILD_CHUNK // width)
+    parts: dict[str, list[Tensor]] = {kind: [] for kind in tables}
+    steps = []
+    for i in range(0, len(centres), chunk):
+        px, py = centres[i : i + chunk, 0:1], centres[i : i + chunk, 1:2]
+        step = torch.full((len(px),), step_max)
+        for kind, t in tables.items():
+            ids = cand[kind][i : i + chunk]
+            if ids.shape[1] == 0:
+                parts[kind].append(ids)
+                continue
+            rows = torch.cat((t, t.new_zeros(1, t.shape[1])))[ids]
+            d, order = torch.where(ids < len(t), _distances(kind, px, py, rows), math.inf).sort(1)
+            ids = ids.gather(1, order)  # nearest first, the padding last
+            m = min(ids.shape[1], max(slots, int((d <= h + step_min).sum(1).max())))
+            if m < ids.shape[1]:  # the nearest obstacle left out bounds the step
+                step = torch.minimum(step, d[:, m] - h)
+            parts[kind].append(ids[:, :m])
+        steps.append(step)
+    lists = {kind: torch.cat([torch.nn.functional.pad(q, (0, max(r.shape[1] for r in p) - q.shape[1]), value=len(tables[kind])) for q in p])
+             for kind, p in parts.items()}
+    return lists, torch.cat(steps)
+
+
 BLOCK = 8  # cells per side of the coarse blocks whose lists the cells choose from
+RAY_CELL = 0.2  # m, the side of the near and ray lists' cells (larger on maps of more than MAX_CELLS of them)
+RAY_SLOTS = 8  # obstacles of a kind each ray list holds at least (as many as the map has, if fewer)
+RAY_STEP_MIN = 0.05  # m, the shortest march step: a ray list holds every obstacle this close to its cell
+RAY_STEP_MAX = 4.0  # m, the longest march step
+MAX_CELLS = 1 << 18
+
+
+def _extent(bounds: tuple[float, float, float, float], tables: dict[str, Tensor]) -> tuple[float, float, float, float]:
+    """``bounds`` grown to hold every obstacle (segments' ends, circles' and boxes' bounding circles)."""
+    xs, ys = [bounds[0], bounds[2]], [bounds[1], bounds[3]]
+    for kind, t in tables.items():
+        if len(t):
+            if kind == "segments":
+                xs += [float(t[:, [0, 2]].min()), float(t[:, [0, 2]].max())]
+                ys += [float(t[:, [1, 3]].min()), float(t[:, [1, 3]].max())]
+            else:
+                r = t[:, 2] if kind == "circles" else torch.hypot(t[:, 2], t[:, 3])
+                xs += [float((t[:, 0] - r).min()), float((t[:, 0] + r).max())]
+                ys += [float((t[:, 1] - r).min()), float((t[:, 1] + r).max())]
+    return min(xs), min(ys), max(xs), max(ys)
 
 
 def build_static_map(
@@ -148,12 +256,17 @@ def build_static_map(
     cell: float | None = None,
     device: torch.device | str | None = None,
     dtype: torch.dtype = torch.float32,
+    ray_cell: float | None = None,
+    rays: bool = True,
 ) -> StaticMap:
     """Index fixed obstacles (``segments`` ``(S, 4)``, ``circles`` ``(C, 3)``, ``boxes`` ``(K, 5)``, the
-    layouts of :class:`~torchnav.sim.state.World`) over a grid of square cells covering ``bounds``
-    ``(xmin, ymin, xmax, ymax)`` m. ``reach`` m: at least the sensors' (:func:`static_reach`; 0 for
-    clearance queries only). ``cell`` m: the cell side; None picks ``reach / 20`` within [0.25, 0.5] m
-    and at most 2**16 cells.
+    layouts of :class:`~torchnav.sim.state.World`) over grids of square cells covering ``bounds``
+    ``(xmin, ymin, xmax, ymax)`` m (grown to hold every obstacle for the near and ray lists).
+    ``reach`` m: at least the sensors' (:func:`static_reach`; 0 builds no reach lists: for clearance and
+    ray scans only). ``rays``: build the ray lists (False: for clearance only). ``cell``
+    m: the reach lists' cell side; None picks ``reach / 20`` within [0.25, 0.5] m and at most 2**16
+    cells. ``ray_cell`` m: the near and ray lists' cell side; None picks ``RAY_CELL`` and at most
+    ``MAX_CELLS`` cells.
 
     Each list pads to the longest, so each per-env world of :func:`local_world` holds that many slots
     of each kind. The cells choose from the lists of blocks of ``BLOCK x BLOCK`` cells, chosen by the
@@ -169,59 +282,79 @@ def build_static_map(
         cell = max(cell, math.sqrt((xmax - xmin) * (ymax - ymin) / 65536))
     if not (math.isfinite(cell) and cell > 0):
         raise ValueError(f"cell must be a positive number of metres, got {cell!r}")
-    nx, ny = max(1, math.ceil((xmax - xmin) / cell)), max(1, math.ceil((ymax - ymin) / cell))
-    # Rounding of the float32 distances and obstacles: a little more than the Lipschitz bound, never less.
-    tol = 1e-4 + 1e-6 * max(abs(xmin), abs(ymin), abs(xmax), abs(ymax))
     given = {"segments": segments, "circles": circles, "boxes": boxes}
     exact = {kind: torch.as_tensor(given[kind] if given[kind] is not None else torch.zeros(0, width)).to(dtype).reshape(-1, width)
              for kind, _, width in _KINDS}  # the values the simulator will see
     tables = {kind: t.float() for kind, t in exact.items()}  # chosen from in float32, within `tol`
+    for kind, t in exact.items():
+        if not torch.isfinite(t).all():
+            raise ValueError(f"{kind} must be finite, got non-finite values in rows {(~torch.isfinite(t)).any(1).nonzero()[:10, 0].tolist()}")
+    grid = _extent((xmin, ymin, xmax, ymax), tables)
+    if ray_cell is None:
+        ray_cell = max(RAY_CELL, math.sqrt((grid[2] - grid[0]) * (grid[3] - grid[1]) / MAX_CELLS))
+    if not (math.isfinite(ray_cell) and ray_cell > 0):
+        raise ValueError(f"ray_cell must be a positive number of metres, got {ray_cell!r}")
+    # Rounding of the float32 distances and obstacles: a little more than the Lipschitz bound, never less.
+    tol = 1e-4 + 1e-6 * max(abs(v) for v in grid)
 
-    def centres(n_x: int, n_y: int, side: float) -> Tensor:  # row j * n_x + i
-        xs = xmin + side * (torch.arange(n_x, dtype=torch.float64) + 0.5)
-        ys = ymin + side * (torch.arange(n_y, dtype=torch.float64) + 0.5)
-        return torch.stack(torch.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2).float()
+    def lists(x0: float, y0: float, x1: float, y1: float, side: float, block_reach: float) -> tuple[Tensor, Tensor, dict[str, Tensor], int, int]:
+        """The cells of side ``side`` over the box: centres, half diagonal (with ``tol``), the
+        candidates from their blocks (chosen for ``block_reach``) and the grid's size."""
+        nx, ny = max(1, math.ceil((x1 - x0) / side)), max(1, math.ceil((y1 - y0) / side))
 
-    bx, by = math.ceil(nx / BLOCK), math.ceil(ny / BLOCK)
-    blocks = _select(centres(bx, by, BLOCK * cell), BLOCK * cell * math.sqrt(0.5) * (1 + 1e-4) + tol, reach, tables)
-    i, j = torch.arange(nx).repeat(ny), torch.arange(ny).repeat_interleave(nx)
-    block_of = (j // BLOCK) * bx + i // BLOCK  # (cells,)
-    ids = _select(centres(nx, ny, cell), cell * math.sqrt(0.5) * (1 + 1e-4) + tol, reach, tables, {k: v[block_of] for k, v in blocks.items()})
-    ids = {k: v.to(device) for k, v in ids.items()}
+        def centres(n_x: int, n_y: int, s: float) -> Tensor:  # row j * n_x + i
+            xs = x0 + s * (torch.arange(n_x, dtype=torch.float64) + 0.5)
+            ys = y0 + s * (torch.arange(n_y, dtype=torch.float64) + 0.5)
+            return torch.stack(torch.meshgrid(xs, ys, indexing="xy"), -1).reshape(-1, 2).float()
+
+        bx, by = math.ceil(nx / BLOCK), math.ceil(ny / BLOCK)
+        blocks = _select(centres(bx, by, BLOCK * side), BLOCK * side * math.sqrt(0.5) * (1 + 1e-4) + tol, block_reach, tables)
+        i, j = torch.arange(nx).repeat(ny), torch.arange(ny).repeat_interleave(nx)
+        block_of = (j // BLOCK) * bx + i // BLOCK  # (cells,)
+        return centres(nx, ny, side), side * math.sqrt(0.5) * (1 + 1e-4) + tol, {k: v[block_of] for k, v in blocks.items()}, nx, ny
+
+    def to_device(ids: dict[str, Tensor]) -> dict[str, Tensor]:
+        return {k: v.to(device) for k, v in ids.items()}
+
+    reach_lists = ray_lists = ray_step = ray_rows = None
     planar = {k: torch.cat((t, t.new_zeros(1, t.shape[1])), 0).t().contiguous().to(device=device) for k, t in exact.items()}
+    if reach > 0:
+        pts, h, cand, nx, ny = lists(xmin, ymin, xmax, ymax, cell, reach)
+        reach_lists = CellLists(to_device(_select(pts, h, reach, tables, cand)), (xmin, ymin), float(cell), nx, ny)
+    pts, h, cand, nx, ny = lists(*grid, ray_cell, RAY_STEP_MAX if rays else 0.0)
+    near_lists = CellLists(to_device(_select(pts, h, 0.0, tables, cand)), grid[:2], float(ray_cell), nx, ny)
+    if rays:
+        ray_ids, ray_step = _nearest_lists(pts, h, tables, cand, RAY_SLOTS, RAY_STEP_MIN, RAY_STEP_MAX)
+        ray_lists, ray_step = CellLists(to_device(ray_ids), grid[:2], float(ray_cell), nx, ny), ray_step.to(device=device, dtype=dtype)
+        # The padding column is an obstacle of zero size, which every hit function misses: no mask needed.
+        ray_rows = {k: _ROWS[k](planar[k])[:, ids].permute(1, 0, 2).contiguous() for k, ids in ray_lists.ids.items()}
     return StaticMap(
         segments=planar["segments"], circles=planar["circles"], boxes=planar["boxes"],
-        segment_ids=ids["segments"], circle_ids=ids["circles"], box_ids=ids["boxes"],
-        origin=(xmin, ymin), cell=float(cell), nx=nx, ny=ny, reach=float(reach),
+        reach_lists=reach_lists, near_lists=near_lists, ray_lists=ray_lists, ray_step=ray_step, ray_rows=ray_rows,
+        bounds=grid, reach=float(reach),
     )
 
 
-def cell_of(static: StaticMap, xy: Tensor) -> Tensor:
-    """Index ``(...)`` int64 of the cell holding each point ``xy`` ``(..., 2)`` m (the nearest cell
-    for points outside the grid)."""
-    i = ((xy[..., 0] - static.origin[0]) / static.cell).floor().clamp(0, static.nx - 1).long()
-    j = ((xy[..., 1] - static.origin[1]) / static.cell).floor().clamp(0, static.ny - 1).long()
-    return j * static.nx + i
-
-
-def local_world(static: StaticMap, xy: Tensor) -> World:
+def local_world(static: StaticMap, xy: Tensor, lists: str = "reach") -> World:
     """The obstacles that matter to robots at ``xy`` ``(B, 2)`` m: a world of batch ``B`` with each
     kind's slots from the robot's cell list (masked off past the list's end), stored component-major
-    (:func:`~torchnav.sim.state.planar_world`). Not differentiated through the obstacles, which are fixed."""
-    cells = cell_of(static, xy.detach())
+    (:func:`~torchnav.sim.state.planar_world`). ``lists``: ``"reach"`` (what the sensors see) or
+    ``"near"`` (what can be nearest). Not differentiated through the obstacles, which are fixed."""
+    index = static._lists(lists)
+    cells = index.cells_of(xy.detach())
     out = {}
     for kind, mkey, _ in _KINDS:
-        ids = getattr(static, _IDS[kind])[cells]  # (B, M)
+        ids = index.ids[kind][cells]  # (B, M)
         table = getattr(static, kind)  # (k, N + 1)
         out[kind] = table[:, ids].permute(1, 2, 0)  # (B, M, k), each component a contiguous (B, M) block
         out[mkey] = ids < table.shape[1] - 1
     return World(**out, batch_size=[xy.shape[0]], device=xy.device)
 
 
-def with_static(world: World, static: StaticMap, xy: Tensor) -> World:
+def with_static(world: World, static: StaticMap, xy: Tensor, lists: str = "reach") -> World:
     """``world`` (per-env objects, batch ``B``) with the static obstacles near ``xy`` ``(B, 2)`` as
-    its first slots of each kind (:func:`local_world`), stored component-major."""
-    near = local_world(static, xy)
+    its first slots of each kind (:func:`local_world` of ``lists``), stored component-major."""
+    near = local_world(static, xy, lists)
     out = {}
     for kind, mkey, _ in _KINDS:
         a, b = getattr(near, kind), getattr(world, kind)
@@ -233,15 +366,15 @@ def with_static(world: World, static: StaticMap, xy: Tensor) -> World:
 
 def static_clearance(static: StaticMap, points: Tensor, chunk: int = 1 << 20) -> Tensor:
     """Signed distance ``(n, P)`` m from points ``(n, P, 2)`` to the nearest static obstacle, exactly
-    the whole map's (the cell lists hold every obstacle that can be nearest), in chunks of at most
+    the whole map's (the near lists hold every obstacle that can be nearest), in chunks of at most
     ``chunk`` (point, slot) pairs; ``+inf`` on an empty map."""
     flat = points.reshape(-1, 2)
     best = torch.full((flat.shape[0],), math.inf, dtype=points.dtype, device=points.device)
-    slots = max(1, max(static.slots.values()))
+    slots = max(1, max(static.near_lists.slots.values()))
     step = max(1, chunk // slots)
     for s in range(0, flat.shape[0], step):
         xy = flat[s : s + step]
-        near = local_world(static, xy)
+        near = local_world(static, xy, "near")
         for kind, mkey, _ in _KINDS:
             obs = getattr(near, kind)
             if obs.shape[1]:
@@ -249,3 +382,120 @@ def static_clearance(static: StaticMap, points: Tensor, chunk: int = 1 << 20) ->
                 d = torch.where(getattr(near, mkey), fn(xy[:, 0:1], xy[:, 1:2], obs), math.inf)
                 best[s : s + step] = torch.minimum(best[s : s + step], d.amin(1))
     return best.reshape(points.shape[:-1])
+
+
+def _entry_distance(bounds: tuple[float, float, float, float], ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor) -> Tensor:
+    """Distance along unit rays to where they enter the box ``bounds``: 0 from inside, ``inf`` for a
+    ray that misses it (the slab method)."""
+    def slab(o: Tensor, d: Tensor, lo: float, hi: float) -> tuple[Tensor, Tensor]:
+        inv = 1.0 / torch.where(d.abs() > 1e-12, d, torch.full_like(d, 1e-12))
+        a, b = (lo - o) * inv, (hi - o) * inv
+        return torch.minimum(a, b), torch.maximum(a, b)
+
+    xa, xb = slab(ox, dx, bounds[0], bounds[2])
+    ya, yb = slab(oy, dy, bounds[1], bounds[3])
+    t_in, t_out = torch.maximum(xa, ya).clamp(min=0.0), torch.minimum(xb, yb)
+    return torch.where(t_in <= t_out, t_in, math.inf)
+
+
+_HITS = {"segments": hit_segment, "circles": hit_circle, "boxes": _hit_box_rows}
+_ROWS = {"segments": lambda t: t, "circles": lambda t: t, "boxes": lambda t: _box_rows(t.t()).t()}  # planar (w, N) -> hit rows
+
+
+def _march_step(ray: Tensor, where: Tensor, rows: dict[str, Tensor], cell_step: Tensor, grid: tuple[float, float, float, int, int],
+                bounds: tuple[float, float, float, float], max_range: float, steps: int = 1) -> tuple[Tensor, Tensor, Tensor]:
+    """``steps`` march steps of the rays ``ray`` ``(n, 6)`` ``[ox, oy, dx, dy, t, best]`` (the point
+    ``o + t d`` and the nearest hit so far) and ``where`` ``(n,)``, the cell that listed that hit:
+    test each ray against its cell's ray lists (``rows``, :attr:`StaticMap.ray_rows`, on the cells
+    ``grid`` ``(x0, y0, side, nx, ny)``) and move it on by the cell's step ``cell_step``. Returns the
+    new ``(ray, where)`` and ``going`` ``(n,)`` bool: the rays still to march (short of their nearest
+    hit and the range, inside ``bounds``, which hold every obstacle). A ray done before the last step
+    steps on harmlessly: all it can meet are real hits no nearer than the first, and once out of the
+    bounds it stays out. Takes tensors and numbers only, so that compiled calls check few guards."""
+    ox, oy, dx, dy, t, best = ray.unbind(1)
+    x0, y0, side, nx, ny = grid
+    ok = torch.ones((), dtype=torch.bool, device=ray.device)
+    for _ in range(steps):
+        i = ((ox + t * dx - x0) / side).floor().clamp(0, nx - 1).long()
+        cells = ((oy + t * dy - y0) / side).floor().clamp(0, ny - 1).long() * nx + i
+        for key, table in rows.items():
+            obs = table.index_select(0, cells).transpose(1, 2)  # (n, M, w)
+            near = _HITS[key](ox[:, None], oy[:, None], dx[:, None], dy[:, None], obs, ok).amin(1)
+            where = torch.where(near < best, cells, where)
+            best = torch.minimum(near, best)
+        t = t + cell_step.index_select(0, cells)
+    x, y = ox + t * dx, oy + t * dy
+    going = (t < best) & (t < max_range) & (x >= bounds[0]) & (x <= bounds[2]) & (y >= bounds[1]) & (y <= bounds[3])
+    return torch.stack((ox, oy, dx, dy, t, best), 1), where, going
+
+
+_compiled_march_step = None
+COMPILED_MARCH_STEPS = 2  # march steps per call of the compiled step
+
+
+@torch.compiler.disable
+@torch.no_grad()
+def _march(static: StaticMap, ox: Tensor, oy: Tensor, dx: Tensor, dy: Tensor, start: float, done: Tensor, max_range: float,
+           compiled: bool) -> tuple[Tensor, Tensor]:
+    """March the rays (flat ``(N,)`` origins and unit directions) from ``start`` m on, but those
+    ``done``: each ray's nearest hit ``(N,)`` m (inf: none found) and the cell ``(N,)`` that listed it
+    (-1: none). Eager (a loop whose length depends on the rays), on the rays still marching only;
+    ``compiled``: its steps through ``torch.compile`` (dynamic shapes, compiled once per process)."""
+    global _compiled_march_step
+    step, steps = _march_step, 1
+    if compiled:
+        if _compiled_march_step is None:
+            _compiled_march_step = torch.compile(_march_step, dynamic=True)
+        step, steps = _compiled_march_step, COMPILED_MARCH_STEPS
+    lists = static.ray_lists
+    rows = {k: v for k, v in static.ray_rows.items() if v.shape[2]}
+    grid = (*lists.origin, lists.cell, lists.nx, lists.ny)
+    best = torch.full_like(ox, math.inf)
+    where = torch.full_like(ox, -1, dtype=torch.int64)
+    # Rays from outside the grid start where they enter it; those that miss it never start.
+    t = torch.maximum(_entry_distance(static.bounds, ox, oy, dx, dy), torch.full_like(ox, start))
+    live = ((t < max_range) & ~done).nonzero()[:, 0]
+    ray = torch.stack((ox, oy, dx, dy, t, best), 1).index_select(0, live)
+    at = where.index_select(0, live)
+    while live.numel():
+        ray, at, going = step(ray, at, rows, static.ray_step, grid, static.bounds, max_range, steps)
+        if not bool(going.all()):
+            stop = (~going).nonzero()[:, 0]
+            best.index_copy_(0, live.index_select(0, stop), ray[:, 5].index_select(0, stop))
+            where.index_copy_(0, live.index_select(0, stop), at.index_select(0, stop))
+            keep = going.nonzero()[:, 0]
+            live, ray, at = live.index_select(0, keep), ray.index_select(0, keep), at.index_select(0, keep)
+    return best, where
+
+
+def static_ray_hits(static: StaticMap, origin: Tensor, angles: Tensor, max_range: float, start: float = 0.0,
+                    done: Tensor | None = None) -> Tensor:
+    """Distance ``(B, R)`` m along rays from ``origin`` ``(B, 2)`` at world ``angles`` ``(B, R)`` to the
+    first static obstacle they hit from ``start`` m on; ``inf`` where none lies nearer than
+    ``max_range`` or the ray is ``done`` ``(B, R)`` bool (not marched).
+
+    Each ray marches from cell to cell of the ray lists: at each point it is tested against the
+    obstacles its cell lists, then it moves on by the cell's step, which no obstacle left out of the
+    list is nearer than. No obstacle the ray meets is ever stepped over, so the nearest hit found is
+    the whole map's. With gradients to the origin or angles, the cell that listed it is tested once
+    more, differentiably (the every-obstacle scan's minimum has the same gradients). The march costs
+    a few cells per ray, whatever the map's size; it runs eagerly under ``torch.compile``, each of
+    its steps compiled."""
+    static._lists("ray")  # names them if missing
+    dx, dy = torch.cos(angles), torch.sin(angles)
+    ox, oy = origin[:, 0:1].expand_as(dx), origin[:, 1:2].expand_as(dx)
+    done = torch.zeros_like(dx, dtype=torch.bool) if done is None else done
+    rays = [v.detach().reshape(-1) for v in (ox, oy, dx, dy)]
+    best, where = _march(static, *rays, start, done.reshape(-1), max_range, torch.compiler.is_compiling())
+    # The march stops at the range: a hit past it need not be the first one there, so none is kept.
+    where = torch.where(best < max_range, where, -1).reshape(dx.shape)
+    best = torch.where(best < max_range, best, math.inf).reshape(dx.shape)
+    if not (torch.is_grad_enabled() and (origin.requires_grad or angles.requires_grad)):
+        return best
+    out = torch.full_like(dx, math.inf)
+    ok = torch.ones((), dtype=torch.bool, device=dx.device)
+    for key, rows in static.ray_rows.items():
+        if rows.shape[2]:
+            obs = rows.index_select(0, where.clamp(min=0).reshape(-1)).reshape(*dx.shape, *rows.shape[1:]).transpose(-1, -2)  # (B, R, M, w)
+            out = torch.minimum(out, _HITS[key](ox[..., None], oy[..., None], dx[..., None], dy[..., None], obs, ok).amin(-1))
+    return torch.where(where >= 0, out, math.inf)

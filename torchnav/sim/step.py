@@ -17,7 +17,7 @@ from .movers import BOX_FIELDS, N_MOVER_FIELDS, Movers, check_mover_boxes, mover
 from .params import SimParams
 from .randomize import EnvParams
 from .state import SimState, World, check_world, planar_world
-from .static_map import StaticMap, with_static
+from .static_map import StaticMap, static_reach, with_static
 
 
 def check_action(action: Tensor, state: SimState) -> None:
@@ -122,7 +122,11 @@ def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, target, queue, 
     (``robots.py``: each robot's movers and other robots); ``present`` ``(B,)`` bool marks the robots
     that exist: the others read ``clearance`` +inf and never collide. ``static``: the shared fixed
     obstacles, added to ``world`` near each robot."""
-    if static is not None:
+    if static is not None:  # the shared map's reach lists join each env's world (the lidar marches past them)
+        need = static_reach(params, march=True)
+        if static.reach < need - 1e-9:
+            raise ValueError(f"static map: its reach lists reach {static.reach:g} m, these sensors need {need:g} m "
+                             "(build_static_map(..., reach=static_reach(params)))")
         world = with_static(world, static, pose[:, :2])
     mw = seen if seen is not None else mover_world(movers.rows, movers.mask, movers.boxes) if movers.rows.shape[1] else None
     radius = params.robot_radius if env is None else env.robot_radius
@@ -132,10 +136,10 @@ def _sense(pose, vel, odom, time, imu, imu_bias, movers: Movers, target, queue, 
     if present is not None:
         clearance = torch.where(present, clearance, torch.inf)
     if env is None:
-        ranges = lidar_scan(pose, world, params.lidar, generator, unroll=unroll, movers=mw)
+        ranges = lidar_scan(pose, world, params.lidar, generator, unroll=unroll, movers=mw, static=static)
     else:  # a misaligned sensor, per-env noise and dropout, a shorter range
         turned = torch.cat((pose[:, :2], pose[:, 2:] + env.angle_offset[:, None]), -1)
-        ranges = lidar_scan(turned, world, params.lidar, generator, unroll=unroll, movers=mw)
+        ranges = lidar_scan(turned, world, params.lidar, generator, unroll=unroll, movers=mw, static=static)
         far = env.max_range[:, None]
         if generator is not None:
             ranges = ranges + env.range_noise[:, None] * torch.randn(ranges.shape, generator=generator, dtype=ranges.dtype, device=ranges.device)

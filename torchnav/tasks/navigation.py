@@ -49,10 +49,10 @@ class NavTask(BatchedTask):
             check_room(self.spec, cfg.robot.radius + cfg.reset.start_clearance, cfg.reset.goal_clearance)
         self.params = cfg.sim_params()
         share = share_map and self.spec is not None and (cfg.shared_map == "on" or (cfg.shared_map == "auto" and self.spec.n_fixed >= SHARED_MAP_MIN))
-        # The map's fixed obstacles once for the batch (sim/static_map.py): indexed for the sensors, and
-        # for the clearance tests of the reset samplers. None: every env's world holds a copy.
-        self.static: StaticMap | None = self.spec.static_map(static_reach(self.params), self.device, dtype) if share else None
-        self.static_near: StaticMap | None = self.spec.static_map(0.0, self.device, dtype) if share else None
+        # The map's fixed obstacles once for the batch (sim/static_map.py): indexed for the sensors (a ray
+        # scan marches past a short reach) and for the clearance tests of the reset samplers. None:
+        # every env's world holds a copy.
+        self.static: StaticMap | None = self.spec.static_map(static_reach(self.params, march=True), self.device, dtype) if share else None
         self.randomized = cfg.randomize.ranges()  # domain randomisation: parameter -> (min, max)
         self.delay_steps = max_delay(self.randomized)
         # The largest robot the episode may draw decides how much room a start needs.
@@ -154,14 +154,14 @@ class NavTask(BatchedTask):
         else:
             world = self.base_world[idx]
             if given is None:
-                start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator, static=self.static_near)
+                start, _ = sample_starts(world, self.spec, self.max_radius + rc.start_clearance, rc.candidates, generator, static=self.static)
                 goal, _ = sample_goals(world, self.spec, start[:, :2], c.curriculum.min_radius, cur.radius, rc.goal_clearance, rc.candidates, generator,
-                                       static=self.static_near)
+                                       static=self.static)
             else:
                 start, goal = given
             world = place_random_objects(
                 world, self.spec, start[:, :2], goal, rc.candidates, generator,
-                start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance, static=self.static_near,
+                start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance, static=self.static,
             )
             family = torch.zeros(n, dtype=torch.int64, device=self.device)
             difficulty = torch.zeros(n, dtype=self.dtype, device=self.device)
@@ -200,7 +200,7 @@ class NavTask(BatchedTask):
         # With procedural worlds each env's movers live in its world's bounds ((n, 1, 1) per edge).
         where = self.spec if bounds is None else MoverSource(self.world_movers, tuple(bounds[:, i, None, None] for i in range(4)))
         return place_movers(world, where, start_xy, goal, rc.candidates, generator,
-                            start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance, static=self.static_near)
+                            start_need=self.max_radius + rc.start_clearance, goal_need=rc.goal_clearance, static=self.static)
 
     def _generated(self, n: int, cur: CurriculumState, generator: torch.Generator, robots: RobotPlacement | None = None,
                    ) -> tuple[World, Tensor, Tensor, Tensor, Tensor, Tensor, tuple[Tensor, Tensor] | None]:
@@ -304,7 +304,7 @@ class NavTask(BatchedTask):
         xmin, ymin, xmax, ymax = self.spec.bounds
         for name, xy, need in (("start", start[:, :2], self.max_radius), ("goal", goal, 0.0)):
             edge = torch.stack((xy[:, 0] - xmin, xmax - xy[:, 0], xy[:, 1] - ymin, ymax - xy[:, 1]), -1).amin(-1)
-            clear = torch.minimum(obstacle_clearance(xy[:, None], world, self.static_near)[:, 0], edge)
+            clear = torch.minimum(obstacle_clearance(xy[:, None], world, self.static)[:, 0], edge)
             bad = (clear < need) if need > 0 else (clear <= 0)
             if bad.any():
                 what = f"closer than the robot's radius {need:g} m to" if need > 0 else "inside"
