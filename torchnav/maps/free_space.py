@@ -58,6 +58,14 @@ def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> t
     Returns ``(free, xs, ys)``: ``free`` is ``(ny, nx)`` bool (row ``j`` is y = ``ys[j]``),
     ``xs`` ``(nx,)`` and ``ys`` ``(ny,)`` the cell centres in m.
     """
+    d, edge, xs, ys = _distance_grid(spec, resolution)
+    return (d > robot_radius) & (edge > robot_radius), xs, ys
+
+
+@functools.lru_cache(maxsize=16)
+def _distance_grid(spec: MapSpec, resolution: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`free_grid`'s distances ``(ny, nx)`` to the nearest obstacle and to the world's edge, and
+    its cell centres ``xs``, ``ys``: measured once per map and resolution (read-only arrays)."""
     xmin, ymin, xmax, ymax = spec.bounds
     xs = np.arange(xmin + resolution / 2, xmax, resolution)
     ys = np.arange(ymin + resolution / 2, ymax, resolution)
@@ -65,7 +73,9 @@ def free_grid(spec: MapSpec, robot_radius: float, resolution: float = 0.05) -> t
     d = obstacle_distance(spec, np.stack([gx.ravel(), gy.ravel()], -1)).reshape(gx.shape)
     # The world rectangle bounds the grid even when the map has no boundary walls.
     edge = np.minimum(np.minimum(gx - xmin, xmax - gx), np.minimum(gy - ymin, ymax - gy))
-    return (d > robot_radius) & (edge > robot_radius), xs, ys
+    for a in (d, edge, xs, ys):
+        a.flags.writeable = False
+    return d, edge, xs, ys
 
 
 def _room_resolution(spec: MapSpec) -> float:

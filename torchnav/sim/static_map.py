@@ -228,7 +228,7 @@ BLOCK = 8  # cells per side of the coarse blocks whose lists the cells choose fr
 RAY_CELL = 0.2  # m, the side of the near and ray lists' cells (larger on maps of more than MAX_CELLS of them)
 RAY_SLOTS = 8  # obstacles of a kind each ray list holds at least (as many as the map has, if fewer)
 RAY_STEP_MIN = 0.05  # m, the shortest march step: a ray list holds every obstacle this close to its cell
-RAY_STEP_MAX = 4.0  # m, the longest march step
+RAY_STEP_MAX = 3.0  # m, the longest march step
 MAX_CELLS = 1 << 18
 
 
