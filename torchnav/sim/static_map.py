@@ -1,24 +1,28 @@
-"""A map's fixed obstacles held once for a whole batch, with a grid index of what each place can see.
+"""A map's fixed obstacles held once for a whole batch, with grid indexes of what each place can see.
 
 A big static map (a building from SLAM: thousands of boxes after the occupancy conversion) is the
 same in every env of a batch. Copying it into every env's :class:`~torchnav.sim.state.World` costs
 memory in proportion to the number of envs, and testing every lidar ray against every obstacle costs
-time in proportion to the map. A :class:`StaticMap` holds the obstacles once, and a uniform grid of
-cells over the map in which each cell lists the obstacles that can matter to a robot standing in it:
+time in proportion to the map. A :class:`StaticMap` holds the obstacles once, with uniform grids of
+cells over the map in which each cell lists obstacles that matter to a robot standing in it:
 
-* every obstacle within ``reach`` of some point of the cell (``reach`` is at least the longest
-  sensor ray from the robot's centre, :func:`static_reach`), so the lidar, the exact sector scan and
-  the camera see exactly what they would see of the whole map;
-* every obstacle that can be the nearest one to some point of the cell, so the clearance (and the
-  collision test) is exactly the whole map's, however far the nearest obstacle is.
+* reach lists: every obstacle within ``reach`` of some point of the cell, and every one that can be
+  the nearest to some point of it. Each step gathers each robot's list into its per-env world
+  (:func:`with_static`), so the clearance, the collision test and the sensors are the brute-force
+  code on fewer slots, and read the whole map as far as ``reach`` (:func:`static_reach`);
+* ray lists: each cell's nearest few obstacles, and a step that no obstacle left out is nearer than
+  to any point of the cell. A ray scan marches the rays that hit nothing within ``reach`` from cell
+  to cell (:func:`static_ray_hits`), so the lidar needs only a short ``reach`` and a ray costs a
+  few cells whatever the map's size;
+* near lists: every obstacle that can be the nearest to some point of the cell, for clearance queries
+  of many points (:func:`static_clearance`: the reset samplers).
 
-Both follow from the obstacles' signed distances being 1-Lipschitz: for a point ``p`` of a cell of
-centre ``c`` and half diagonal ``h``, ``|sd(p, o) - sd(c, o)| <= h``. Every step gathers each
-robot's cell list into a small per-env world (:func:`local_world`), so the rest of the step is the
-brute-force code, unchanged, on fewer slots: the readings are the whole map's, up to nothing (the
-nearest hit is a minimum over the same per-obstacle values), gradients flow to the pose as before,
-and the per-env memory is that of one cell list. The guarantee holds for robots inside the grid
-(the map's bounds); a robot outside it uses its nearest cell's list.
+All follow from the obstacles' signed distances being 1-Lipschitz: for a point ``p`` of a cell of
+centre ``c`` and half diagonal ``h``, ``|sd(p, o) - sd(c, o)| <= h``. The readings are the whole
+map's, up to nothing (the nearest hit is a minimum over the same per-obstacle values), gradients
+flow to the pose as before, and the per-env memory is that of one reach list. The guarantee holds
+for robots inside the grid (the map's bounds); a robot outside it uses its nearest cell's lists,
+while its rays march from where they enter the grid.
 """
 
 from __future__ import annotations
