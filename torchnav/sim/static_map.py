@@ -350,7 +350,7 @@ def local_world(static: StaticMap, xy: Tensor, lists: str = "reach") -> World:
     for kind, mkey, _ in _KINDS:
         ids = index.ids[kind][cells]  # (B, M)
         table = getattr(static, kind)  # (k, N + 1)
-        out[kind] = table[:, ids].permute(1, 2, 0)  # (B, M, k), each component a contiguous (B, M) block
+        out[kind] = table.index_select(1, ids.reshape(-1)).reshape(table.shape[0], *ids.shape).permute(1, 2, 0)  # (B, M, k), each component a contiguous (B, M) block
         out[mkey] = ids < table.shape[1] - 1
     return World(**out, batch_size=[xy.shape[0]], device=xy.device)
 
