@@ -301,7 +301,7 @@ def build_static_map(
     # Rounding of the float32 distances and obstacles: a little more than the Lipschitz bound, never less.
     tol = 1e-4 + 1e-6 * max(abs(v) for v in grid)
 
-    def lists(x0: float, y0: float, x1: float, y1: float, side: float, block_reach: float) -> tuple[Tensor, Tensor, dict[str, Tensor], int, int]:
+    def cells(x0: float, y0: float, x1: float, y1: float, side: float, block_reach: float) -> tuple[Tensor, Tensor, dict[str, Tensor], int, int]:
         """The cells of side ``side`` over the box: centres, half diagonal (with ``tol``), the
         candidates from their blocks (chosen for ``block_reach``) and the grid's size."""
         nx, ny = max(1, math.ceil((x1 - x0) / side)), max(1, math.ceil((y1 - y0) / side))
@@ -323,9 +323,9 @@ def build_static_map(
     reach_lists = ray_lists = ray_step = ray_rows = None
     planar = {k: torch.cat((t, t.new_zeros(1, t.shape[1])), 0).t().contiguous().to(device=device) for k, t in exact.items()}
     if reach > 0:
-        pts, h, cand, nx, ny = lists(xmin, ymin, xmax, ymax, cell, reach)
+        pts, h, cand, nx, ny = cells(xmin, ymin, xmax, ymax, cell, reach)
         reach_lists = CellLists(to_device(_select(pts, h, reach, tables, cand)), (xmin, ymin), float(cell), nx, ny)
-    pts, h, cand, nx, ny = lists(*grid, ray_cell, RAY_STEP_MAX if rays else 0.0)
+    pts, h, cand, nx, ny = cells(*grid, ray_cell, RAY_STEP_MAX if rays else 0.0)
     near_lists = CellLists(to_device(_select(pts, h, 0.0, tables, cand)), grid[:2], float(ray_cell), nx, ny)
     if rays:
         ray_ids, ray_step = _nearest_lists(pts, h, tables, cand, RAY_SLOTS, RAY_STEP_MIN, RAY_STEP_MAX)
@@ -355,10 +355,10 @@ def local_world(static: StaticMap, xy: Tensor, lists: str = "reach") -> World:
     return World(**out, batch_size=[xy.shape[0]], device=xy.device)
 
 
-def with_static(world: World, static: StaticMap, xy: Tensor, lists: str = "reach") -> World:
-    """``world`` (per-env objects, batch ``B``) with the static obstacles near ``xy`` ``(B, 2)`` as
-    its first slots of each kind (:func:`local_world` of ``lists``), stored component-major."""
-    near = local_world(static, xy, lists)
+def with_static(world: World, static: StaticMap, xy: Tensor) -> World:
+    """``world`` (per-env objects, batch ``B``) with the static obstacles of the reach lists near ``xy``
+    ``(B, 2)`` as its first slots of each kind (:func:`local_world`), stored component-major."""
+    near = local_world(static, xy)
     out = {}
     for kind, mkey, _ in _KINDS:
         a, b = getattr(near, kind), getattr(world, kind)
