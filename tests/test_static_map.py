@@ -94,6 +94,57 @@ def test_clearance_of_points_is_the_whole_maps():
     assert torch.equal(static_clearance(static, pts, chunk=7), want)  # chunking changes nothing
 
 
+def test_clearance_against_a_floor_decides_it_as_the_exact_values_do():
+    """With ``floor``, the clearance grid answers for points far from it: the same side of the floor
+    as the exact clearance at every point, inside the grid and outside it; points near it are measured."""
+    segments, circles, boxes = _obstacles(seed=5)
+    static = build_static_map(BOUNDS, segments, circles, boxes, reach=0.0, dtype=torch.float64)
+    grid = static.clearance_grid
+    assert grid is not None and grid.values.shape == (math.ceil(8.0 / grid.cell), math.ceil(12.0 / grid.cell))
+    pts = torch.cat((_poses(3000, seed=6)[:, :2], torch.tensor([[9.0, 0.0], [-7.0, 5.0]], dtype=torch.float64))).reshape(1, -1, 2)
+    exact = static_clearance(static, pts)
+    for floor in (0.0, 0.3, 1.0):
+        got = static_clearance(static, pts, floor=floor)
+        assert torch.equal(got >= floor, exact >= floor)
+        low, high = grid.bounds(pts[0])
+        undecided = ~((low >= floor) | (high < floor))[None]  # the grid cannot tell these from the floor: measured
+        assert undecided.any() and torch.equal(got[undecided], exact[undecided])
+        assert (low <= exact[0]).all() and (high >= exact[0]).all()
+        assert (got[exact >= floor] <= exact[exact >= floor]).all() and (got[exact < floor] >= exact[exact < floor]).all()  # bounds
+        assert (got != exact).float().mean() > 0.5  # most points were answered by the grid
+    no_grid = build_static_map(BOUNDS, segments, circles, boxes, reach=0.0, dtype=torch.float64, clearance_grid=False)
+    assert no_grid.clearance_grid is None and torch.equal(static_clearance(no_grid, pts, floor=0.3), exact)
+
+
+def test_samplers_place_the_same_episodes_with_the_clearance_grid_as_without():
+    """The reset samplers read the grid's bounds only to decide which candidates are clear: the same
+    starts and goals as exact clearance, also where no candidate is clear (the fallbacks rank them)."""
+    from torchnav.tasks.sampling import sample_goals, sample_starts
+
+    spec = load_map("warehouse")
+    segments, circles, boxes = (torch.tensor(rows, dtype=torch.float32).reshape(-1, w) for rows, w in
+                                ((spec.segments, 4), (spec.circles, 3), (spec.boxes, 5)))
+    static = build_static_map(spec.bounds, segments, circles, boxes, reach=0.0)
+    exact = dataclasses.replace(static, clearance_grid=None)
+    world = make_world(64, dtype=torch.float32)
+    for need in (0.3, 3.0):  # 3 m: most envs find no clear candidate
+        runs = []
+        for sm in (static, exact):
+            g = torch.Generator().manual_seed(0)
+            start, found = sample_starts(world, spec, need, 16, g, static=sm)
+            goal, near = sample_goals(world, spec, start[:, :2], 0.5, torch.tensor(4.0), need, 16, g, static=sm)
+            runs.append((start, found, goal, near))
+        for x, y in zip(*runs):
+            assert torch.equal(x, y)
+        assert bool(runs[0][1].all()) == (need < 1.0)
+
+
+def test_grid_bounds_hold_rotated_boxes_tightly():
+    box = torch.tensor([[0.0, 0.0, 3.0, 0.1, math.pi / 2]])  # a 6 m wall standing along y
+    static = build_static_map((-1.0, -1.0, 1.0, 1.0), boxes=box, reach=0.0, dtype=torch.float64)
+    assert static.bounds == pytest.approx((-1.0, -3.0, 1.0, 3.0), abs=1e-6)  # not the box's bounding circle (3 m each way)
+
+
 @pytest.mark.parametrize("march", [False, True])
 def test_image_map_boxes(march):
     """An occupancy image's boxes (many, touching, axis-aligned), in float32 as the tasks use them."""
@@ -235,6 +286,20 @@ def test_march_alone_equals_every_ray_against_every_obstacle():
     assert torch.isfinite(got[-3:]).any() and torch.isinf(got[-3:]).any()  # from outside: some rays enter the grid, some miss it
     done = torch.rand(angles.shape, generator=g) < 0.5
     assert torch.equal(static_ray_hits(static, origin, angles, 30.0, done=done), torch.where(done, math.inf, got))
+
+
+@pytest.mark.slow  # compiles the step and the march (about a minute)
+def test_compiled_march_reads_as_eager():
+    """``compiled_march``: eager calls march with the compiled steps (a compiled task's fresh episodes)."""
+    from torchnav.sim.static_map import compiled_march
+
+    params = _params(max_range=4.0)
+    _, dyn, static = _both(params, _obstacles(seed=16), 128, dtype=torch.float32, march=True)
+    pose = _poses(128, seed=18, dtype=torch.float32)
+    a = init_state(pose, dyn, params, static=static)
+    with compiled_march():
+        b = init_state(pose, dyn, params, static=static)
+    assert torch.allclose(a.ranges, b.ranges, rtol=0, atol=1e-5) and ((a.ranges > 2.0) & (a.ranges < 4.0)).any()
 
 
 @pytest.mark.slow  # compiles the step and the march (about a minute)

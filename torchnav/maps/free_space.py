@@ -43,7 +43,7 @@ def obstacle_distance_arrays(xy: np.ndarray, segments=(), circles=(), boxes=()) 
         # Many obstacles: each point is measured against its cell's candidates only (sim/static_map.py),
         # the same distances as against every obstacle.
         lo, hi = pts[0].amin(0) - 1.0, pts[0].amax(0) + 1.0
-        static = build_static_map((lo[0], lo[1], hi[0], hi[1]), segments, circles, boxes, reach=0.0, dtype=torch.float64, rays=False)
+        static = build_static_map((lo[0], lo[1], hi[0], hi[1]), segments, circles, boxes, reach=0.0, dtype=torch.float64, rays=False, clearance_grid=False)
         return static_clearance(static, pts)[0].numpy()
     world = make_world(1, segments=segments, circles=circles, boxes=boxes, dtype=torch.float64)
     # points_clearance holds a (points, obstacles) table per kind: chunk the points to keep it small.

@@ -15,7 +15,10 @@ cells over the map in which each cell lists obstacles that matter to a robot sta
   to cell (:func:`static_ray_hits`), so the lidar needs only a short ``reach`` and a ray costs a
   few cells whatever the map's size;
 * near lists: every obstacle that can be the nearest to some point of the cell, for clearance queries
-  of many points (:func:`static_clearance`: the reset samplers).
+  of many points (:func:`static_clearance`: the reset samplers);
+* a clearance grid: the exact clearance at the centres of fine cells, which bounds any point's. The
+  reset samplers mostly ask whether a candidate is clear by some margin, and the grid answers that
+  for the candidates not near that margin without measuring them (:func:`static_clearance`'s ``floor``).
 
 All follow from the obstacles' signed distances being 1-Lipschitz: for a point ``p`` of a cell of
 centre ``c`` and half diagonal ``h``, ``|sd(p, o) - sd(c, o)| <= h``. The readings are the whole
@@ -27,7 +30,11 @@ while its rays march from where they enter the grid.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+import dataclasses
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import torch
@@ -73,6 +80,29 @@ class CellLists:
 
 
 @dataclass(frozen=True, eq=False)
+class ClearanceGrid:
+    """The exact clearance ``values`` ``(ny, nx)`` m at the centres of square cells of side ``cell`` from
+    ``origin`` (the lower-left corner of cell (0, 0)). A point in a cell is within the cell's half
+    diagonal of its centre, and clearance is 1-Lipschitz, so the point's clearance is within
+    ``margin`` (the half diagonal, with rounding) of its cell's value."""
+
+    values: Tensor
+    origin: tuple[float, float]
+    cell: float
+    margin: float
+
+    def bounds(self, xy: Tensor) -> tuple[Tensor, Tensor]:
+        """Lower and upper bounds ``(N,)`` m of the clearance at the points ``xy`` ``(N, 2)``; ``-inf`` and
+        ``inf`` outside the grid."""
+        ny, nx = self.values.shape
+        fx, fy = (xy[:, 0] - self.origin[0]) / self.cell, (xy[:, 1] - self.origin[1]) / self.cell
+        inside = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+        cells = fy.floor().clamp(0, ny - 1).long() * nx + fx.floor().clamp(0, nx - 1).long()
+        value = self.values.reshape(-1).index_select(0, cells)
+        return torch.where(inside, value - self.margin, -math.inf), torch.where(inside, value + self.margin, math.inf)
+
+
+@dataclass(frozen=True, eq=False)
 class StaticMap:
     """Fixed obstacles shared by every env of a batch, and the grid indexes of :func:`build_static_map`.
 
@@ -87,6 +117,8 @@ class StaticMap:
     * ``ray_lists`` and ``ray_step`` ``(cells,)`` m, on the same grid as ``near_lists``: a few of the
       obstacles nearest to the cell, such that every obstacle left out is farther than ``ray_step``
       from every point of the cell (:func:`static_ray_hits` marches rays with them).
+
+    ``clearance_grid`` (None when built without) bounds the clearance of any point in the grid.
     """
 
     segments: Tensor
@@ -99,6 +131,7 @@ class StaticMap:
     ray_rows: dict[str, Tensor] | None  # per kind (cells, w, M): each cell's listed obstacles as the hit functions take them
     bounds: tuple[float, float, float, float]  # m, the near and ray grids': the map's bounds and every obstacle
     reach: float  # m, every obstacle this close to a cell is in its reach list
+    clearance_grid: ClearanceGrid | None = None
 
     @property
     def n_obstacles(self) -> dict[str, int]:
@@ -119,6 +152,7 @@ class StaticMap:
         """Bytes held by the obstacle tables and the indexes (the same for any number of envs)."""
         lists = sum(c.nbytes() for c in (self.reach_lists, self.near_lists, self.ray_lists) if c is not None)
         tables = (self.segments, self.circles, self.boxes) + ((self.ray_step, *self.ray_rows.values()) if self.ray_step is not None else ())
+        tables += (self.clearance_grid.values,) if self.clearance_grid is not None else ()
         return lists + sum(t.numel() * t.element_size() for t in tables)
 
     def _lists(self, which: str) -> CellLists:
@@ -234,10 +268,12 @@ RAY_SLOTS = 8  # obstacles of a kind each ray list holds at least (as many as th
 RAY_STEP_MIN = 0.05  # m, the shortest march step: a ray list holds every obstacle this close to its cell
 RAY_STEP_MAX = 3.0  # m, the longest march step
 MAX_CELLS = 1 << 18
+CLEAR_CELL = 0.05  # m, the side of the clearance grid's cells (larger on maps of more than MAX_CLEAR_CELLS of them)
+MAX_CLEAR_CELLS = 1 << 20
 
 
 def _extent(bounds: tuple[float, float, float, float], tables: dict[str, Tensor]) -> tuple[float, float, float, float]:
-    """``bounds`` grown to hold every obstacle (segments' ends, circles' and boxes' bounding circles)."""
+    """``bounds`` grown to hold every obstacle (segments' ends, circles, boxes' axis-aligned bounding boxes)."""
     xs, ys = [bounds[0], bounds[2]], [bounds[1], bounds[3]]
     for kind, t in tables.items():
         if len(t):
@@ -245,9 +281,13 @@ def _extent(bounds: tuple[float, float, float, float], tables: dict[str, Tensor]
                 xs += [float(t[:, [0, 2]].min()), float(t[:, [0, 2]].max())]
                 ys += [float(t[:, [1, 3]].min()), float(t[:, [1, 3]].max())]
             else:
-                r = t[:, 2] if kind == "circles" else torch.hypot(t[:, 2], t[:, 3])
-                xs += [float((t[:, 0] - r).min()), float((t[:, 0] + r).max())]
-                ys += [float((t[:, 1] - r).min()), float((t[:, 1] + r).max())]
+                if kind == "circles":
+                    rx = ry = t[:, 2]
+                else:  # a box's half extents along x and y, rotated by its yaw
+                    c, s = t[:, 4].cos().abs(), t[:, 4].sin().abs()
+                    rx, ry = t[:, 2] * c + t[:, 3] * s, t[:, 2] * s + t[:, 3] * c
+                xs += [float((t[:, 0] - rx).min()), float((t[:, 0] + rx).max())]
+                ys += [float((t[:, 1] - ry).min()), float((t[:, 1] + ry).max())]
     return min(xs), min(ys), max(xs), max(ys)
 
 
@@ -262,12 +302,14 @@ def build_static_map(
     dtype: torch.dtype = torch.float32,
     ray_cell: float | None = None,
     rays: bool = True,
+    clearance_grid: bool = True,
 ) -> StaticMap:
     """Index fixed obstacles (``segments`` ``(S, 4)``, ``circles`` ``(C, 3)``, ``boxes`` ``(K, 5)``, the
     layouts of :class:`~torchnav.sim.state.World`) over grids of square cells covering ``bounds``
     ``(xmin, ymin, xmax, ymax)`` m (grown to hold every obstacle for the near and ray lists).
     ``reach`` m: at least the sensors' (:func:`static_reach`; 0 builds no reach lists: for clearance and
-    ray scans only). ``rays``: build the ray lists (False: for clearance only). ``cell``
+    ray scans only). ``rays``: build the ray lists (False: for clearance only). ``clearance_grid``:
+    build the clearance grid (cells of ``CLEAR_CELL`` m, at most ``MAX_CLEAR_CELLS``). ``cell``
     m: the reach lists' cell side; None picks ``reach / 20`` within [0.25, 0.5] m and at most 2**16
     cells. ``ray_cell`` m: the near and ray lists' cell side; None picks ``RAY_CELL`` and at most
     ``MAX_CELLS`` cells.
@@ -332,11 +374,26 @@ def build_static_map(
         ray_lists, ray_step = CellLists(to_device(ray_ids), grid[:2], float(ray_cell), nx, ny), ray_step.to(device=device, dtype=dtype)
         # The padding column is an obstacle of zero size, which every hit function misses: no mask needed.
         ray_rows = {k: _ROWS[k](planar[k])[:, ids].permute(1, 0, 2).contiguous() for k, ids in ray_lists.ids.items()}
-    return StaticMap(
+    static = StaticMap(
         segments=planar["segments"], circles=planar["circles"], boxes=planar["boxes"],
         reach_lists=reach_lists, near_lists=near_lists, ray_lists=ray_lists, ray_step=ray_step, ray_rows=ray_rows,
         bounds=grid, reach=float(reach),
     )
+    return dataclasses.replace(static, clearance_grid=_clearance_grid(static, tol)) if clearance_grid else static
+
+
+def _clearance_grid(static: StaticMap, tol: float) -> ClearanceGrid:
+    """The exact clearance at the centres of cells of ``CLEAR_CELL`` m (coarser on a map that would need more
+    than ``MAX_CLEAR_CELLS``) over ``static``'s grid, measured through its near lists."""
+    x0, y0, x1, y1 = static.bounds
+    side = max(CLEAR_CELL, math.sqrt((x1 - x0) * (y1 - y0) / MAX_CLEAR_CELLS))
+    nx, ny = max(1, math.ceil((x1 - x0) / side)), max(1, math.ceil((y1 - y0) / side))
+    like = static.boxes
+    xs = x0 + side * (torch.arange(nx, dtype=torch.float64) + 0.5)
+    ys = y0 + side * (torch.arange(ny, dtype=torch.float64) + 0.5)
+    centres = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), -1).to(device=like.device, dtype=like.dtype)  # (ny, nx, 2)
+    values = static_clearance(static, centres)
+    return ClearanceGrid(values, (x0, y0), side, side * math.sqrt(0.5) * (1 + 1e-4) + tol)
 
 
 def local_world(static: StaticMap, xy: Tensor, lists: str = "reach") -> World:
@@ -368,11 +425,22 @@ def with_static(world: World, static: StaticMap, xy: Tensor) -> World:
     return World(**out, batch_size=world.batch_size, device=world.device)
 
 
-def static_clearance(static: StaticMap, points: Tensor, chunk: int = 1 << 20) -> Tensor:
+def static_clearance(static: StaticMap, points: Tensor, chunk: int = 1 << 20, floor: float | None = None) -> Tensor:
     """Signed distance ``(n, P)`` m from points ``(n, P, 2)`` to the nearest static obstacle, exactly
     the whole map's (the near lists hold every obstacle that can be nearest), in chunks of at most
-    ``chunk`` (point, slot) pairs; ``+inf`` on an empty map."""
+    ``chunk`` (point, slot) pairs; ``+inf`` on an empty map.
+
+    With ``floor`` m and the map's clearance grid, only the points whose clearance the grid leaves
+    within about a cell of ``floor`` are measured. The others read a bound of their clearance on the
+    same side of ``floor`` (at least ``floor`` for a point clear of it, below it for one that is not):
+    ``clearance >= floor`` is decided as exactly, but only the measured values are exact."""
     flat = points.reshape(-1, 2)
+    if floor is not None and static.clearance_grid is not None:
+        low, high = static.clearance_grid.bounds(flat)
+        clear = low >= floor
+        measure = (~(clear | (high < floor))).nonzero()[:, 0]
+        out = torch.where(clear, low, high).index_copy(0, measure, static_clearance(static, flat.index_select(0, measure)[None], chunk)[0])
+        return out.reshape(points.shape[:-1])
     best = torch.full((flat.shape[0],), math.inf, dtype=points.dtype, device=points.device)
     slots = max(1, max(static.near_lists.slots.values()))
     step = max(1, chunk // slots)
@@ -435,6 +503,19 @@ def _march_step(ray: Tensor, where: Tensor, rows: dict[str, Tensor], cell_step: 
 
 _compiled_march_step = None
 COMPILED_MARCH_STEPS = 2  # march steps per call of the compiled step
+_MARCH_COMPILED = contextvars.ContextVar("torchnav_march_compiled", default=False)
+
+
+@contextlib.contextmanager
+def compiled_march() -> Iterator[None]:
+    """Within it, eager calls march their rays with the compiled march steps too, as calls inside
+    ``torch.compile`` always do (compiled once per process, 20-60 s). A compiled task's fresh
+    episodes take their first scan under it: their march, on a few hundred envs, costs about half."""
+    token = _MARCH_COMPILED.set(True)
+    try:
+        yield
+    finally:
+        _MARCH_COMPILED.reset(token)
 
 
 @torch.compiler.disable
@@ -484,13 +565,13 @@ def static_ray_hits(static: StaticMap, origin: Tensor, angles: Tensor, max_range
     the whole map's. With gradients to the origin or angles, the cell that listed it is tested once
     more, differentiably (the every-obstacle scan's minimum has the same gradients). The march costs
     a few cells per ray, whatever the map's size; it runs eagerly under ``torch.compile``, each of
-    its steps compiled."""
+    its steps compiled (and so in eager calls within :func:`compiled_march`)."""
     static._lists("ray")  # names them if missing
     dx, dy = torch.cos(angles), torch.sin(angles)
     ox, oy = origin[:, 0:1].expand_as(dx), origin[:, 1:2].expand_as(dx)
     done = torch.zeros_like(dx, dtype=torch.bool) if done is None else done
     rays = [v.detach().reshape(-1) for v in (ox, oy, dx, dy)]
-    best, where = _march(static, *rays, start, done.reshape(-1), max_range, torch.compiler.is_compiling())
+    best, where = _march(static, *rays, start, done.reshape(-1), max_range, torch.compiler.is_compiling() or _MARCH_COMPILED.get())
     # The march stops at the range: a hit past it need not be the first one there, so none is kept.
     where = torch.where(best < max_range, where, -1).reshape(dx.shape)
     best = torch.where(best < max_range, best, math.inf).reshape(dx.shape)

@@ -7,6 +7,7 @@ simulator is possible: ``state, out = task.step(state, action)``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from typing import Any, Callable
 
@@ -22,7 +23,7 @@ from ..sim import EnvParams, SimState, World, init_state, nominal_env_params, pa
 from ..sim.kinematics import guard_bearings
 from ..sim.movers import Movers
 from ..sim.randomize import max_delay
-from ..sim.static_map import StaticMap, static_reach
+from ..sim.static_map import StaticMap, compiled_march, static_reach
 from ..worlds import RobotPlacement, mix_worlds, slot_counts
 from ..worlds.guide import GUIDE_CELLS, goal_distance
 from ..sim import step as sim_step
@@ -81,6 +82,7 @@ class NavTask(BatchedTask):
         guarded = cfg.action.stop_clearance is not None
         self._guard_bearings = guard_bearings(self.params.lidar, dtype, self.device) if guarded else None
         self._sim_step, self._guarded = sim_step, O.guarded
+        self._first_scans = contextlib.nullcontext  # how fresh episodes' first scans march (compile_step: compiled)
         self._fixed_rows: dict = {}  # full_world's cache: (device, dtype) -> the map's fixed rows of one env
 
     def full_world(self, world: World) -> World:
@@ -105,8 +107,10 @@ class NavTask(BatchedTask):
         """Run the simulator step through ``torch.compile`` from now on (same results; the first
         step compiles, 20-60 s on 2 CPU cores). Pays for long runs on many obstacles: the
         generalist's sector scan over 200 padded slots steps 4.5x faster (docs/performance.md). The
-        arc speed guard (``action.stop_path: arc``) is compiled with it (4x faster at 2,048 envs)."""
+        arc speed guard (``action.stop_path: arc``) is compiled with it (4x faster at 2,048 envs), and
+        on a shared map the fresh episodes' first scans march with compiled steps."""
         self._sim_step = torch.compile(sim_step)
+        self._first_scans = compiled_march
         if self.cfg.action.stop_path == "arc":
             self._guarded = torch.compile(O.guarded)
 
@@ -175,8 +179,9 @@ class NavTask(BatchedTask):
             env_params = sample_env_params(self.randomized, self.params, n, generator, start)
         else:
             env_params = nominal_env_params(self.params, n, start)
-        sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
-                         delay_steps=self.delay_steps, static=self.static)
+        with self._first_scans():
+            sim = init_state(start, world, self.params, movers=movers, env_params=env_params if self.randomized else None,
+                             delay_steps=self.delay_steps, static=self.static)
         crumbs, crumb_count = O.first_crumbs(sim.odom, self.visit_memory)  # the first marks the start (no memory without visit_sectors)
         obs = self.observe(sim, goal, crumbs)
         dist, _ = self.goal_vector(sim.pose, goal)

@@ -31,18 +31,32 @@ _BIG = 1e9
 _CHUNK_ELEMENTS = 1 << 20
 
 
-def obstacle_clearance(points: Tensor, world: World, static: StaticMap | None = None) -> Tensor:
+def obstacle_clearance(points: Tensor, world: World, static: StaticMap | None = None, floor: float | None = None) -> Tensor:
     """:func:`points_clearance` of ``points`` ``(n, P, 2)`` -> ``(n, P)`` m, in chunks along ``P`` so that
     no ``(n, chunk, obstacles)`` temporary exceeds ``_CHUNK_ELEMENTS`` (at least one point per chunk);
-    with ``static``, the nearer of ``world``'s obstacles and the shared map's (``sim/static_map.py``)."""
+    with ``static``, the nearer of ``world``'s obstacles and the shared map's (``sim/static_map.py``).
+    ``floor`` m: the shared map's part is exact only near ``floor``, elsewhere a bound on the same side
+    of it (:func:`static_clearance`): enough to decide ``clearance >= floor``, not to rank points."""
     if static is not None:
-        return torch.minimum(obstacle_clearance(points, world), static_clearance(static, points, _CHUNK_ELEMENTS))
+        return torch.minimum(obstacle_clearance(points, world), static_clearance(static, points, _CHUNK_ELEMENTS, floor))
     n, p = points.shape[:2]
     per_point = n * max(world.segments.shape[1], world.circles.shape[1], world.boxes.shape[1], 1)
     step = max(1, _CHUNK_ELEMENTS // per_point)
     if step >= p:
         return points_clearance(points, world)
     return torch.cat([points_clearance(points[:, i : i + step], world) for i in range(0, p, step)], dim=1)
+
+
+def _measured_where_stuck(clear: Tensor, ok: Tensor, cand: Tensor, world: World, static: StaticMap | None, need: float,
+                          avoid: Tensor | None, avoid_need: float) -> Tensor:
+    """``clear`` ``(n, K)`` (``_away`` of the candidates' clearance, measured with ``floor=need``), measured
+    exactly in the rows where no candidate is ``ok``: the samplers' fallbacks rank those by clearance."""
+    stuck = ~ok.any(dim=1)
+    if static is None or not bool(stuck.any()):
+        return clear
+    rows = stuck.nonzero()[:, 0]
+    exact = _away(cand[rows], obstacle_clearance(cand[rows], world[rows], static), need, None if avoid is None else avoid[rows], avoid_need)
+    return clear.index_copy(0, rows, exact)
 
 
 def _pick(valid: Tensor, score: Tensor) -> tuple[Tensor, Tensor]:
@@ -89,7 +103,8 @@ def sample_starts(world: World, spec: MapSpec, need: float, k: int, generator: t
     xmin, ymin, xmax, ymax = spec.bounds
     m = min(need, 0.49 * min(xmax - xmin, ymax - ymin))
     xy = torch.stack((uniform(xmin + m, xmax - m, (n, k), generator, like), uniform(ymin + m, ymax - m, (n, k), generator, like)), -1)
-    clear = _away(xy, obstacle_clearance(xy, world, static), need, avoid, avoid_need)
+    clear = _away(xy, obstacle_clearance(xy, world, static, floor=need), need, avoid, avoid_need)
+    clear = _measured_where_stuck(clear, clear >= need, xy, world, static, need, avoid, avoid_need)
     idx, found = _pick(clear >= need, clear)
     pos = _gather(xy, idx)
     if not bool(found.all()):
@@ -124,9 +139,10 @@ def sample_goals(
     xmin, ymin, xmax, ymax = spec.bounds
     anywhere = torch.stack((uniform(xmin, xmax, (n, k), generator, like), uniform(ymin, ymax, (n, k), generator, like)), -1)
     cand = torch.cat((near, anywhere), dim=1)  # (n, 2k): near candidates first
-    clear = _away(cand, obstacle_clearance(cand, world, static), need, avoid, avoid_need)
+    clear = _away(cand, obstacle_clearance(cand, world, static, floor=need), need, avoid, avoid_need)
     sep = (cand - start_xy[:, None, :]).norm(dim=-1)
     ok = (clear >= need) & _inside(cand, spec.bounds, need) & (sep >= r_min)
+    clear = _measured_where_stuck(clear, ok, cand, world, static, need, avoid, avoid_need)
     score = torch.where(_inside(cand, spec.bounds, 0.0), clear, torch.full_like(clear, -_BIG / 4))
     # Prefer valid near candidates, then valid anywhere-candidates, then the clearest.
     prio = torch.cat((torch.full((n, k), 2.0, dtype=like.dtype, device=like.device), torch.ones((n, k), dtype=like.dtype, device=like.device)), 1)
