@@ -9,7 +9,7 @@ import pytest
 import torch
 from torchrl.envs.utils import step_mdp
 
-from torchnav.envs import NavEnv
+from torchnav.envs import NavEnv, make_nav_env
 from torchnav.observation import ObservationBuilder, PolicyDriver, Scan, command, resample_scan
 from torchnav.policy import load_policy
 from torchnav.sim import LidarParams, lidar_scan, make_world
@@ -149,3 +149,37 @@ def test_bad_inputs_are_named():
     assert b.twist(torch.tensor([math.nan, 0.5])) == (0.0, 0.5)  # a non-finite action is a stop (apply_limits)
     with pytest.raises(ValueError, match="not a navigation policy"):
         PolicyDriver(load_policy(CHECKPOINTS / "dqn_course_actor.pt"))
+
+
+def test_builder_guards_the_arc_after_the_twists_it_sent():
+    """With the arc guard and an actuator delay the builder's twist is the one the simulator queues, step
+    after step, because it drives the twists it returned before as the simulator drives its queue; the
+    guard without them would have returned other twists."""
+    from torchnav.observation import guarded
+
+    cfg_over = dict(robot={"v_max": 2.0, "omega_max": 4.0}, randomize={"delay": [2, 2]},
+                    action={"stop_clearance": 0.05, "stop_path": "arc"}, max_steps=60)
+    env = make_nav_env("warehouse", num_envs=1, seed=3, **cfg_over)
+    builder = ObservationBuilder(env.cfg)
+    assert builder.queued == 2 and builder.sent.shape == (1, 2, 2)
+    g = torch.Generator().manual_seed(0)
+    td = env.reset()
+    capped = differs = 0
+    for _ in range(300):
+        builder.observe(td["ranges"][0], td["pose"][0].tolist(), env.state.sim.vel[0].tolist(), td["goal"][0].tolist())
+        before = builder.sent.clone()
+        td["action"] = torch.tensor([[1.0, 2 * float(torch.rand((), generator=g)) - 1]])
+        td = env.step(td)
+        v, w = builder.twist(td["action"][0])
+        queued = env.state.sim.cmd_queue[0, 0]  # the command the simulator's guard let through this step
+        assert (v, w) == (float(queued[0]), float(queued[1]))
+        assert torch.equal(builder.sent[0, 0], queued) and torch.equal(builder.sent[0, 1], before[0, 0])
+        plain = command(env.cfg, td["action"][:1], builder.twists)
+        capped += v < float(plain[0, 0]) - 1e-6
+        alone = guarded(env.cfg, plain, builder.ranges[None], builder.lidar, builder.params.robot_radius, builder.params.dt, builder.bearings)
+        differs += abs(float(alone[0, 0]) - v) > 1e-6
+        if bool(td["next", "done"].any()):
+            builder.reset()
+            assert not builder.sent.any()
+        td = env.maybe_reset(step_mdp(td))
+    assert capped > 0 and differs > 0

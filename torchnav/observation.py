@@ -301,8 +301,11 @@ class ObservationBuilder:
     stacked over ``observation.history`` frames (copies of the first at an episode's start), with the
     visit memory's breadcrumbs dropped along the pose's path. :meth:`twist` turns the policy's action
     into the twist the simulator would drive: the action mapping, the speed guard on the last scan,
-    and the speed and acceleration limits relative to the last measured twist. :meth:`reset` starts an
-    episode (the next :meth:`observe` is its first). Observations with an IMU or camera are refused:
+    and the speed and acceleration limits relative to the last measured twist. With the arc guard
+    and an actuator delay (``action.stop_path: arc``, ``randomize.delay``) it keeps the twists it
+    returned, newest first (:attr:`sent`), and the guard drives those first, as the simulator's guard
+    drives its command queue. :meth:`reset` starts an episode (the next :meth:`observe` is its first;
+    the robot is taken to have been told to stand). Observations with an IMU or camera are refused:
     a robot provides neither reading in the simulator's form.
     """
 
@@ -320,6 +323,8 @@ class ObservationBuilder:
         self.frame_size = int(self.scale.numel())
         self.obs_size = self.frame_size * cfg.observation.history
         self.memory = cfg.observation.visit_memory if cfg.observation.visit_sectors else 0
+        delay = guard_dynamics(cfg)[1]
+        self.queued = delay if cfg.action.stop_clearance is not None and cfg.action.stop_path == "arc" else 0  # twists the guard drives first
         self.reset()
 
     def reset(self) -> None:
@@ -329,6 +334,7 @@ class ObservationBuilder:
         self.count = torch.zeros(1, dtype=torch.int64)
         self.ranges: Tensor | None = None  # (R,) the last scan in the simulator's layout
         self.vel = torch.zeros(1, 2, dtype=self.dtype)
+        self.sent = torch.zeros(1, self.queued, 2, dtype=self.dtype)  # (1, K, 2) the last twists returned, newest first
         self.unseen = torch.zeros(self.lidar.n_rays, dtype=torch.bool)
         self.goal_distance = math.inf  # m, from the last observe (uncapped)
 
@@ -371,13 +377,17 @@ class ObservationBuilder:
     def twist(self, action: Tensor) -> tuple[float, float]:
         """The twist ``(v m/s, omega rad/s)`` the simulator drives for the policy's ``action`` (``(2,)`` in [-1, 1],
         or a one-hot ``(A,)`` for a discrete policy) after the last :meth:`observe`: :func:`command`, the speed
-        guard on the last scan (:func:`guarded`) and the limits (``apply_limits``; a non-finite action stops)."""
+        guard on the last scan (:func:`guarded`, driving the twists :attr:`sent` first) and the limits
+        (``apply_limits``; a non-finite action stops). The result is taken to be sent to the robot."""
         if self.ranges is None:
             raise RuntimeError("twist: no observation yet this episode (call observe first)")
         cmd = command(self.cfg, torch.as_tensor(action).reshape(1, -1).to(self.dtype), self.twists, self.dtype)
-        cmd = guarded(self.cfg, cmd, self.ranges[None], self.lidar, self.params.robot_radius, self.params.dt, self.bearings)
-        out = apply_limits(cmd, self.vel, self.params)[0]
-        return float(out[0]), float(out[1])
+        cmd = guarded(self.cfg, cmd, self.ranges[None], self.lidar, self.params.robot_radius, self.params.dt, self.bearings,
+                      self.sent if self.queued else None)
+        out = apply_limits(cmd, self.vel, self.params)
+        if self.queued:
+            self.sent = torch.cat((out[:, None], self.sent[:, :-1]), 1)
+        return float(out[0, 0]), float(out[0, 1])
 
     def _vector(self, x: Sequence[float], k: int, name: str) -> Tensor:
         t = torch.as_tensor(x, dtype=self.dtype).reshape(-1)
