@@ -5,7 +5,8 @@ a scatter of small blobs, as an occupancy image from SLAM looks) and written as 
 (PGM + YAML) into a temporary folder; torchnav loads it as it is and turns its occupied pixels into a
 few thousand boxes. Figures, per map and number of envs:
 
-* ``build``      seconds to build ``NavEnv`` and reset it, and the peak memory of doing so;
+* ``build``      seconds to build ``NavEnv`` and reset it, and the peak memory of doing so (compiled: the
+                 reset's first scans compile the march steps, once per process);
 * ``raw-sim``    ``torchnav.sim.step`` alone on the env's worlds, poses and shared map (random twists),
                  eager and compiled (``torch.compile``; compile time is never in a rate);
 * ``env-step``   ``env.step_and_maybe_reset`` with random actions, ``NavEnv(compile_step=True)`` and eager;
@@ -17,6 +18,7 @@ env-steps/s, each within 5x of arena's; the map held once; an env built in under
     python bench/big_map.py                 # 64, 1,024 and 4,096 envs, eager and compiled
     python bench/big_map.py --json          # plus one JSON object per line (tables on stderr)
     python bench/big_map.py --quick         # 64 envs, eager, a few steps: a smoke run
+    python bench/big_map.py --hold-memory   # malloc keeps freed memory (torchnav.memory.hold_freed_memory())
     python bench/big_map.py --write-map DIR # only write the map (DIR/big_warehouse.yaml + .pgm) and exit
 """
 
@@ -189,10 +191,12 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
             verdict = "meets" if pick["big_warehouse"] >= target and ratio <= TARGET_RATIO else "misses"
             print(f"   {mode}, 4,096 envs compiled: big_warehouse {common.human_rate(pick['big_warehouse'])}/s, arena {common.human_rate(pick['arena'])}/s "
                   f"({ratio:.1f}x); target >= {common.human_rate(target)}/s and within {TARGET_RATIO:g}x of arena: {verdict} it", file=log)
-    builds = [r["seconds"] for r in built]
-    if builds:
+    builds = [r["seconds"] for r in built if not r["compiled"]]
+    if builds:  # a compiled env's build also compiles the march its first reset runs (once per process, cached across them)
         summary["build_s_max"] = max(builds)
-        print(f"   building an env on big_warehouse: at most {max(builds):.2f} s (target < {TARGET_BUILD_S:g} s)", file=log)
+        compiled = [r["seconds"] for r in built if r["compiled"]]
+        print(f"   building an env on big_warehouse: at most {max(builds):.2f} s (target < {TARGET_BUILD_S:g} s)"
+              + (f"; compiled, with its first reset's compile: {max(compiled):.2f} s" if compiled else ""), file=log)
     if args.json:
         common.emit_json(summary)
     return records + [summary]

@@ -36,6 +36,11 @@ os.environ.setdefault("TORCHINDUCTOR_COMPILE_THREADS", "1")
 
 import torch  # noqa: E402
 
+from torchnav.memory import freed_memory_held, hold_freed_memory  # noqa: E402
+
+if "--hold-memory" in sys.argv:  # before the bench allocates anything big (torchnav/memory.py)
+    hold_freed_memory()
+
 
 # -- device and threads -----------------------------------------------------------
 
@@ -68,6 +73,7 @@ def machine_info(device: str) -> dict[str, Any]:
         "cpu_count": os.cpu_count(),
         "threads": torch.get_num_threads(),
         "loadavg_1m": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
+        "malloc": "held" if freed_memory_held() else "system",
     }
     if torch.device(device).type == "cuda":
         info["gpu"] = torch.cuda.get_device_name(device)
@@ -102,8 +108,11 @@ def start(args, title: str, device: str, json_bench: str | None = None):
 
 def timing_args(p, run_seconds: float, warmup: int = 5) -> None:
     """The timing options every throughput bench takes: ``--threads``, ``--steps``, ``--run-seconds``, ``--repeats``, ``--warmup``,
-    ``--cpu-time``."""
+    ``--cpu-time``, ``--hold-memory``."""
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (default 2)")
+    p.add_argument("--hold-memory", action="store_true",
+                   help="torchnav.memory.hold_freed_memory(): glibc malloc serves big blocks from its heap and keeps freed memory "
+                        "for reuse (default: malloc as it is, as in the recipes)")
     p.add_argument("--cpu-time", action="store_true",
                    help="time runs in this process's CPU time (time.process_time) instead of wall time: on a shared "
                         "machine, time spent waiting for a core is not counted (meaningful with --threads 1 on CPU)")

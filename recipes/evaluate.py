@@ -216,4 +216,7 @@ def main(argv: list[str]) -> dict:
 
 
 if __name__ == "__main__":
+    from torchnav.memory import hold_freed_memory
+
+    hold_freed_memory()  # big evaluation batches reuse their freed memory (docs/performance.md, "Memory allocator")
     B.main_guard(main)

@@ -157,10 +157,12 @@ def test_multi_robot_bench_runs():
 
 @pytest.mark.slow  # about 15 s: a tool's end-to-end run, outside the default suite's budget
 def test_big_map_quick_json(tmp_path):
-    cmd = [sys.executable, str(ROOT / "bench" / "big_map.py"), "--quick", "--json", "--threads", "1"]
+    cmd = [sys.executable, str(ROOT / "bench" / "big_map.py"), "--quick", "--json", "--threads", "1", "--hold-memory"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert out.returncode == 0, out.stderr[-2000:]
     recs = [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+    machine = next(r for r in recs if r.get("bench") == "big_map_machine")
+    assert machine["malloc"] == ("held" if sys.platform == "linux" else "system")
     cells = {(r["map"], r["mode"]) for r in recs if r.get("bench") == "big_map"}
     assert cells == {(m, k) for m in ("arena", "big_warehouse") for k in ("build", "raw-sim", "env-step")}
     big = next(r for r in recs if r.get("bench") == "big_map" and r["map"] == "big_warehouse" and r["mode"] == "build")
