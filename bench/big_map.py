@@ -9,7 +9,8 @@ few thousand boxes. Figures, per map and number of envs:
                  reset's first scans compile the march steps, once per process);
 * ``raw-sim``    ``torchnav.sim.step`` alone on the env's worlds, poses and shared map (random twists),
                  eager and compiled (``torch.compile``; compile time is never in a rate);
-* ``env-step``   ``env.step_and_maybe_reset`` with random actions, ``NavEnv(compile_step=True)`` and eager;
+* ``env-step``   ``env.step_and_maybe_reset`` with random actions, ``NavEnv(compile_step=True)`` and eager,
+                 and the fraction of envs reset per step (``reset_fraction``, over every step it ran);
 * the bytes of the shared map (the same for any number of envs) and of the per-env worlds.
 
 Targets (4,096 envs, compiled, same run): on the big map raw-sim >= 500,000 and env-step >= 100,000
@@ -112,12 +113,13 @@ def bench_cell(args, map_path: str, map_name: str, n: int, compiled: bool) -> li
         box["i"] += 1
 
     actions = [env.action_spec.rand() for _ in range(8)]
-    tds = {"td": env.reset(), "i": 0}
+    tds = {"td": env.reset(), "i": 0, "ended": torch.zeros((), dtype=torch.int64, device=args.device)}
 
     def env_step() -> None:
         td = tds["td"]
         td.set("action", actions[tds["i"] % 8])
-        _, tds["td"] = env.step_and_maybe_reset(td)
+        out, tds["td"] = env.step_and_maybe_reset(td)
+        tds["ended"] += out["next", "done"].sum()  # episodes ended, so envs reset (read once, at the end)
         tds["i"] += 1
 
     for mode, call in (("raw-sim", raw), ("env-step", env_step)):
@@ -128,8 +130,9 @@ def bench_cell(args, map_path: str, map_name: str, n: int, compiled: bool) -> li
         steps = args.steps or common.calibrate(call, args.device, args.run_seconds, lo=2, hi=2000)
         with common.PeakMemory(args.device) as mem:
             t = common.time_calls(call, items_per_call=n, steps=steps, repeats=args.repeats, warmup=args.warmup, device=args.device)
+        extra = {"reset_fraction": round(int(tds["ended"]) / (tds["i"] * n), 4)} if mode == "env-step" else {}
         out.append(_rec(args, map_name, n, mode, compiled, **t.fields(), step_ms=round(1e3 * t.call_us / 1e6, 3), steps=steps,
-                        repeats=len(t.seconds), first_call_s=round(first_s, 2), peak_mem_bytes=mem.bytes))
+                        repeats=len(t.seconds), first_call_s=round(first_s, 2), peak_mem_bytes=mem.bytes, **extra))
     env.close()
     return out
 
@@ -170,7 +173,9 @@ def main(argv: list[str] | None = None) -> list[dict[str, Any]]:
                         if args.json:
                             common.emit_json(rec)
                     print(f"   {name} {n} envs {'compiled' if compiled else 'eager'}: " + ", ".join(
-                        f"{r['mode']} {common.human_rate(r['env_steps_per_s'])}/s" for r in records[-3:] if "env_steps_per_s" in r), file=log, flush=True)
+                        f"{r['mode']} {common.human_rate(r['env_steps_per_s'])}/s"
+                        + (f" ({100 * r['reset_fraction']:.1f}% of envs reset a step)" if "reset_fraction" in r else "")
+                        for r in records[-3:] if "env_steps_per_s" in r), file=log, flush=True)
     rows = []
     for r in records:
         rate = common.human_rate(r["env_steps_per_s"]) if "env_steps_per_s" in r else f"{r['seconds']:.2f} s"

@@ -168,6 +168,7 @@ def test_big_map_quick_json(tmp_path):
     big = next(r for r in recs if r.get("bench") == "big_map" and r["map"] == "big_warehouse" and r["mode"] == "build")
     assert big["fixed_obstacles"] > 2000 and big["shared_map_bytes"] > 0 and big["per_env_world_bytes"] == 0
     assert all(r["env_steps_per_s"] > 0 for r in recs if r.get("mode") in ("raw-sim", "env-step"))
+    assert all(0 <= r["reset_fraction"] <= 1 for r in recs if r.get("mode") == "env-step")
     # --write-map writes the map_server map that loads as it is
     written = subprocess.run([sys.executable, str(ROOT / "bench" / "big_map.py"), "--write-map", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert written.returncode == 0 and (tmp_path / "big_warehouse.pgm").exists()
