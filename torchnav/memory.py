@@ -5,9 +5,8 @@ at thousands of envs). glibc's malloc gives blocks above its mmap threshold fres
 OS and returns freed memory above its trim threshold, so a step can pay again for the OS to map
 and zero those pages. :func:`hold_freed_memory` raises both thresholds, so the blocks come from
 malloc's heap and stay there to be reused. ``recipes/evaluate.py`` and ``recipes/benchmark.py``
-call it (1,000 episodes of the generalist on a big map: 40-47 s against 38-63 s in four runs each); the training
-recipes do not (a short TD3 run was no faster); the benchmarks with ``--hold-memory``
-(docs/performance.md, "Memory allocator").
+call it, the benchmarks with ``--hold-memory``; the training recipes do not (what it changes, and
+where it did not pay: docs/performance.md, "Memory allocator").
 """
 
 from __future__ import annotations

@@ -50,6 +50,14 @@ _BUILD_CHUNK = 1 << 22
 _KINDS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
 
 
+def _cell_index(xy: Tensor, origin: tuple[float, float], cell: float, nx: int, ny: int) -> Tensor:
+    """Row-major index ``(...)`` int64 of the grid cell holding each point ``xy`` ``(..., 2)`` m (cells of side
+    ``cell`` from ``origin``, ``nx`` by ``ny``); the nearest cell for points outside the grid."""
+    i = ((xy[..., 0] - origin[0]) / cell).floor().clamp(0, nx - 1).long()
+    j = ((xy[..., 1] - origin[1]) / cell).floor().clamp(0, ny - 1).long()
+    return j * nx + i
+
+
 @dataclass(frozen=True, eq=False)
 class CellLists:
     """A uniform grid of square cells, each listing some of a :class:`StaticMap`'s obstacles.
@@ -71,9 +79,7 @@ class CellLists:
     def cells_of(self, xy: Tensor) -> Tensor:
         """Index ``(...)`` int64 of the cell holding each point ``xy`` ``(..., 2)`` m (the nearest cell
         for points outside the grid)."""
-        i = ((xy[..., 0] - self.origin[0]) / self.cell).floor().clamp(0, self.nx - 1).long()
-        j = ((xy[..., 1] - self.origin[1]) / self.cell).floor().clamp(0, self.ny - 1).long()
-        return j * self.nx + i
+        return _cell_index(xy, self.origin, self.cell, self.nx, self.ny)
 
     def nbytes(self) -> int:
         return sum(t.numel() * t.element_size() for t in self.ids.values())
@@ -95,10 +101,9 @@ class ClearanceGrid:
         """Lower and upper bounds ``(N,)`` m of the clearance at the points ``xy`` ``(N, 2)``; ``-inf`` and
         ``inf`` outside the grid."""
         ny, nx = self.values.shape
-        fx, fy = (xy[:, 0] - self.origin[0]) / self.cell, (xy[:, 1] - self.origin[1]) / self.cell
-        inside = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
-        cells = fy.floor().clamp(0, ny - 1).long() * nx + fx.floor().clamp(0, nx - 1).long()
-        value = self.values.reshape(-1).index_select(0, cells)
+        (x0, y0), side = self.origin, self.cell
+        inside = (xy[:, 0] >= x0) & (xy[:, 0] < x0 + nx * side) & (xy[:, 1] >= y0) & (xy[:, 1] < y0 + ny * side)
+        value = self.values.reshape(-1).index_select(0, _cell_index(xy, self.origin, side, nx, ny))
         return torch.where(inside, value - self.margin, -math.inf), torch.where(inside, value + self.margin, math.inf)
 
 
