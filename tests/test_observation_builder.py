@@ -9,12 +9,12 @@ import pytest
 import torch
 from torchrl.envs.utils import step_mdp
 
+from torchnav.config import to_dict
 from torchnav.envs import NavEnv, make_nav_env
 from torchnav.observation import ObservationBuilder, PolicyDriver, Scan, command, resample_scan
 from torchnav.policy import load_policy
-from torchnav.config import to_dict
-from torchnav.tasks import NavConfig
 from torchnav.sim import LidarParams, lidar_scan, make_world
+from torchnav.tasks import NavConfig
 
 CHECKPOINTS = Path(__file__).resolve().parent.parent / "checkpoints"
 NAV_POLICIES = [p.name for p in sorted(CHECKPOINTS.glob("*.pt")) if load_policy(p).task == "nav"]
@@ -32,15 +32,15 @@ def test_builder_matches_the_env(name):
     (ppo_generalist_jackal_actor) drives its robot without the randomisation, the acceleration limits and
     the delay here: the builder has no episode's draw to know, and its queue under a delay is tested below."""
     sp = load_policy(CHECKPOINTS / name)
-    cfg = sp.config()
-    d = to_dict(cfg)
-    if any(v is not None for v in d["randomize"].values()) or math.isfinite(cfg.robot.lin_acc_max) or math.isfinite(cfg.robot.ang_acc_max):
+    trained = sp.config()
+    d = to_dict(trained)
+    if any(v is not None for v in d["randomize"].values()) or math.isfinite(trained.robot.lin_acc_max) or math.isfinite(trained.robot.ang_acc_max):
         d = {**d, "randomize": {}, "robot": {**d["robot"], "preset": "default", "lin_acc_max": math.inf, "ang_acc_max": math.inf}}
     # Pooled episodes (the generalists') compute their first observation in refills of the pool's size. On
     # a batch that long torch's atan2 runs vectorised and rounds 16% of its results a bit off the scalar
     # atan2 a builder's batch of one runs; refills of 8 stay scalar, so the comparison can be bit for bit.
     cfg = NavConfig.from_dict({**d, "reset": {**d["reset"], "pool": min(d["reset"]["pool"], 8)}})
-    assert (cfg.robot.radius, cfg.robot.v_max) == (sp.config().robot.radius, sp.config().robot.v_max)  # its body and speeds
+    assert (cfg.robot.radius, cfg.robot.v_max) == (trained.robot.radius, trained.robot.v_max)  # its body and speeds
     n, steps = 3, 240
     env = NavEnv(cfg, num_envs=n, seed=7)
     builders = [ObservationBuilder(cfg) for _ in range(n)]

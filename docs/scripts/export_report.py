@@ -28,8 +28,8 @@ from torchnav.export import WEIGHT_FORMATS, export, quantized_actor
 from torchnav.policy import load_policy, save_policy
 
 ROOT = Path(__file__).resolve().parents[2]
-CHECKPOINTS = ["td3_arena_actor", "ppo_arena_actor", "sac_arena_actor", "ppo_movers_actor", "ppo_generalist_actor", "ppo_generalist_jackal_actor",
-               "ppo_course_actor", "dqn_course_actor"]
+CHECKPOINTS = ["td3_arena_actor", "ppo_arena_actor", "sac_arena_actor", "ppo_movers_actor", "ppo_generalist_actor",
+               "ppo_generalist_jackal_actor", "ppo_course_actor", "dqn_course_actor"]
 
 
 def evaluate(path: Path, episodes: int, seed: int, out: Path) -> dict:
