@@ -50,11 +50,11 @@ _BUILD_CHUNK = 1 << 22
 _KINDS = (("segments", "segment_mask", 4), ("circles", "circle_mask", 3), ("boxes", "box_mask", 5))
 
 
-def _cell_index(xy: Tensor, origin: tuple[float, float], cell: float, nx: int, ny: int) -> Tensor:
-    """Row-major index ``(...)`` int64 of the grid cell holding each point ``xy`` ``(..., 2)`` m (cells of side
-    ``cell`` from ``origin``, ``nx`` by ``ny``); the nearest cell for points outside the grid."""
-    i = ((xy[..., 0] - origin[0]) / cell).floor().clamp(0, nx - 1).long()
-    j = ((xy[..., 1] - origin[1]) / cell).floor().clamp(0, ny - 1).long()
+def _cell_index(x: Tensor, y: Tensor, origin: tuple[float, float], cell: float, nx: int, ny: int) -> Tensor:
+    """Row-major index (int64, the shape of ``x`` and ``y``) of the grid cell holding each point ``(x, y)`` m
+    (cells of side ``cell`` from ``origin``, ``nx`` by ``ny``); the nearest cell for points outside the grid."""
+    i = ((x - origin[0]) / cell).floor().clamp(0, nx - 1).long()
+    j = ((y - origin[1]) / cell).floor().clamp(0, ny - 1).long()
     return j * nx + i
 
 
@@ -79,7 +79,7 @@ class CellLists:
     def cells_of(self, xy: Tensor) -> Tensor:
         """Index ``(...)`` int64 of the cell holding each point ``xy`` ``(..., 2)`` m (the nearest cell
         for points outside the grid)."""
-        return _cell_index(xy, self.origin, self.cell, self.nx, self.ny)
+        return _cell_index(xy[..., 0], xy[..., 1], self.origin, self.cell, self.nx, self.ny)
 
     def nbytes(self) -> int:
         return sum(t.numel() * t.element_size() for t in self.ids.values())
@@ -103,7 +103,7 @@ class ClearanceGrid:
         ny, nx = self.values.shape
         (x0, y0), side = self.origin, self.cell
         inside = (xy[:, 0] >= x0) & (xy[:, 0] < x0 + nx * side) & (xy[:, 1] >= y0) & (xy[:, 1] < y0 + ny * side)
-        value = self.values.reshape(-1).index_select(0, _cell_index(xy, self.origin, side, nx, ny))
+        value = self.values.reshape(-1).index_select(0, _cell_index(xy[:, 0], xy[:, 1], self.origin, side, nx, ny))
         return torch.where(inside, value - self.margin, -math.inf), torch.where(inside, value + self.margin, math.inf)
 
 
@@ -493,8 +493,7 @@ def _march_step(ray: Tensor, where: Tensor, rows: dict[str, Tensor], cell_step: 
     x0, y0, side, nx, ny = grid
     ok = torch.ones((), dtype=torch.bool, device=ray.device)
     for _ in range(steps):
-        i = ((ox + t * dx - x0) / side).floor().clamp(0, nx - 1).long()
-        cells = ((oy + t * dy - y0) / side).floor().clamp(0, ny - 1).long() * nx + i
+        cells = _cell_index(ox + t * dx, oy + t * dy, (x0, y0), side, nx, ny)
         for key, table in rows.items():
             obs = table.index_select(0, cells).transpose(1, 2)  # (n, M, w)
             near = _HITS[key](ox[:, None], oy[:, None], dx[:, None], dy[:, None], obs, ok).amin(1)
