@@ -43,7 +43,7 @@ class Temperature(nn.Module):
 
 
 def main(argv: list[str]) -> dict:
-    run = B.setup("sac_lidar", argv, ckpt_format="torchnav-sac-v2", action_mode="continuous")
+    run = B.setup("sac_lidar", argv, ckpt_format="torchnav-sac-v3", action_mode="continuous")
     tc, env, device = run.cfg.train, run.env, run.device
 
     # -- networks: the actor's linear head emits (loc, raw scale); the collector samples TanhNormal(loc, scale)

@@ -32,7 +32,7 @@ from torchnav.policy import Actor  # noqa: E402
 
 
 def main(argv: list[str]) -> dict:
-    run = B.setup("td3_lidar", argv, ckpt_format="torchnav-td3-v4", action_mode="continuous")
+    run = B.setup("td3_lidar", argv, ckpt_format="torchnav-td3-v5", action_mode="continuous")
     tc, env, device = run.cfg.train, run.env, run.device
 
     # -- networks, optimisers, exploration noise, replay buffer -----------------------------------
@@ -70,7 +70,7 @@ def main(argv: list[str]) -> dict:
         opt_critic.step()
         if (run.counters["updates"] + 1) % int(tc.policy_delay) == 0:
             critic.requires_grad_(False)  # the actor's loss needs no gradients of the critic's weights: a third fewer matmuls
-            a_loss = -critic.q1(torch.cat((obs, actor(obs)), dim=-1)).mean()
+            a_loss = -critic.q1(obs, actor(obs)).mean()
             opt_actor.zero_grad(set_to_none=True)
             a_loss.backward()
             critic.requires_grad_(True)

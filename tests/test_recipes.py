@@ -206,6 +206,42 @@ def test_n_step_returns_stop_at_episode_ends_and_the_batch_end():
     assert torch.allclose(one["next", "discount"], torch.full((2, 6, 1), 0.9))
 
 
+def test_twin_critics_are_two_independent_mlps():
+    from builders import TwinQ
+
+    torch.manual_seed(0)
+    critic = TwinQ(5, 2, [8, 4])
+    w, b = critic.weight, critic.bias
+    assert [tuple(t.shape) for t in w] == [(2, 7, 8), (2, 8, 4), (2, 4, 1)] and [tuple(t.shape) for t in b] == [(2, 1, 8), (2, 1, 4), (2, 1, 1)]
+    assert not torch.equal(w[0][0], w[0][1])  # each critic its own initialisation ...
+    assert all(bool((t.abs() <= t.shape[1] ** -0.5).all()) for t in w)  # ... within nn.Linear's bounds, 1/sqrt(fan_in)
+    obs, action = torch.randn(6, 5), torch.rand(6, 2)
+    q1, q2 = critic(obs, action)
+
+    def mlp(k):  # critic k by hand
+        x = torch.cat((obs, action), -1)
+        for i in range(3):
+            x = x @ w[i][k] + b[i][k]
+            x = x.relu() if i < 2 else x
+        return x
+
+    torch.testing.assert_close(q1, mlp(0))
+    torch.testing.assert_close(q2, mlp(1))
+    torch.testing.assert_close(critic.q1(obs, action), q1)
+    q2.sum().backward()  # the second critic's loss reaches its own weights only
+    assert all(float(t.grad[0].abs().max()) == 0.0 and float(t.grad[1].abs().max()) > 0.0 for t in w)
+
+
+def test_replay_update_bench_times_both_layouts():
+    out = subprocess.run([sys.executable, str(ROOT / "bench" / "replay_update.py"), "--threads", "1", "--updates", "4", "--rounds", "2",
+                          "--buffer", "2000", "--hidden", "16", "16"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert out.returncode == 0, out.stderr
+    assert "| separate |" in out.stdout and "| stacked |" in out.stdout and "stacked / separate:" in out.stdout
+    bad = subprocess.run([sys.executable, str(ROOT / "bench" / "replay_update.py"), "--rounds", "0"], capture_output=True, text=True,
+                         timeout=60, cwd=ROOT)
+    assert bad.returncode == 2 and "--rounds must be at least 1" in bad.stderr
+
+
 def test_ppo_lr_decay_falls_linearly_to_zero_at_total_frames(tmp_path):
     # train.lr_decay: each update sets the rate from the frames collected before its batch; the last of
     # 4 batches of 128 frames is trained at a quarter of train.lr, and the default (off) keeps train.lr

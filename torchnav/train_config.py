@@ -151,14 +151,14 @@ class TD3Train(Train):
     total_frames: int = count(1, 250_880)  # env steps over all envs (245 batches)
     frames_per_batch: int = count(1, 1024)  # env steps collected between update rounds (a multiple of env.num_envs)
     init_random_frames: int = count(0, 5120)  # uniformly random actions first; updates start once the buffer holds this many
-    updates_per_batch: int = count(1, 128)  # gradient steps per collected batch (1 per 8 frames; fewer, larger steps learn less)
+    updates_per_batch: int = count(1, 96)  # gradient steps per collected batch (1 per 10.7 frames; fewer, larger steps learn less)
     batch_size: int = count(1, 256)  # transitions per gradient step (at most buffer_size)
     buffer_size: int = count(1, 1_000_000)  # replay buffer capacity (transitions)
     gamma: float = discount(0.99)  # discount
     n_steps: int = count(1, 3)  # n-step returns: each stored transition sums up to this many rewards (within a collected batch; 1: one-step TD3)
     tau: float = discount(0.005)  # target-network soft-update rate
-    lr_actor: float = positive(3e-4)  # Adam learning rate, actor
-    lr_critic: float = positive(3e-4)  # Adam learning rate, twin critics
+    lr_actor: float = positive(6e-4)  # Adam learning rate, actor
+    lr_critic: float = positive(6e-4)  # Adam learning rate, twin critics
     policy_delay: int = count(1, 2)  # actor and target updates every this many critic updates
     policy_noise: float = non_negative(0.2)  # target-policy smoothing noise std (action units)
     noise_clip: float = non_negative(0.5)  # clip of the smoothing noise
