@@ -1,7 +1,22 @@
 """Shared test settings."""
 
+import os
+
 import pytest
 import torch
+
+MAX_WORKERS = 4  # test processes of `-n auto` (pyproject.toml's addopts): more buy little and each holds its own torch
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_auto_num_workers(config):
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(MAX_WORKERS, cores))
+
+
+def alone_on_the_machine() -> bool:
+    """Whether this test process is the only one of the run (no pytest-xdist workers beside it)."""
+    return int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) <= 1
 
 
 @pytest.fixture(autouse=True, scope="session")
