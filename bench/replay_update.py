@@ -4,8 +4,8 @@
     python bench/replay_update.py --hidden 256 256 --rounds 15 --threads 1
 
 A round is ``--updates`` gradient steps (the recipe's ``train.updates_per_batch``) of ``--batch-size``
-transitions from a replay buffer of ``--buffer`` random transitions, each step the one of
-``recipes/td3_lidar.py`` (critics every step; actor, target critics and target actor every second):
+transitions from a replay buffer of ``--buffer`` random transitions, each step ``recipes/td3_lidar.py``'s
+own (``make_step``, at the recipe's defaults: critics every step; actor and targets every second):
 
 - ``separate``: two critics as two TorchRL MLPs, one ``buffer.sample()`` per step (the layout before
   ``recipes/builders.py``'s stacked ``TwinQ``);
@@ -35,7 +35,9 @@ from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer  # noqa: E402
 from torchrl.modules import MLP  # noqa: E402
 
 import builders as B  # noqa: E402
+import td3_lidar  # noqa: E402
 from torchnav.policy import Actor  # noqa: E402
+from torchnav.train_config import TD3Train  # noqa: E402
 
 OBS, ACT = 24, 2  # the lidar navigation task's observation and action sizes
 
@@ -57,36 +59,20 @@ class SeparateQ(torch.nn.Module):
 
 
 def make_update(critic: torch.nn.Module, hidden: list[int]):
-    """``step(sample)``: one gradient step of recipes/td3_lidar.py's update with this critic module."""
+    """``step(sample)``: recipes/td3_lidar.py's gradient step (its ``make_step``, the recipe's defaults) with this
+    critic module."""
     actor = Actor(OBS, ACT, hidden)
     actor_target, critic_target = copy.deepcopy(actor).requires_grad_(False), copy.deepcopy(critic).requires_grad_(False)
-    opt_actor, opt_critic = B.adam(actor.parameters(), lr=3e-4), B.adam(critic.parameters(), lr=3e-4)
-    count = [0]
+    tc = TD3Train()
+    opt_actor, opt_critic = B.adam(actor.parameters(), lr=tc.lr_actor), B.adam(critic.parameters(), lr=tc.lr_critic)
+    done = [0]
+    step = td3_lidar.make_step(tc, actor, critic, actor_target, critic_target, opt_actor, opt_critic, lambda: done[0])
 
-    def step(sample):
-        obs, action, nxt = sample["observation"], sample["action"], sample["next"]
-        with torch.no_grad():
-            smoothing = (torch.randn_like(action) * 0.2).clamp(-0.5, 0.5)
-            next_action = (actor_target(nxt["observation"]) + smoothing).clamp(-1.0, 1.0)
-            q_next = torch.minimum(*critic_target(nxt["observation"], next_action))
-            target = nxt["reward"] + nxt["discount"] * (~nxt["terminated"]) * q_next
-        q1, q2 = critic(obs, action)
-        q_loss = (q1 - target).pow(2).mean() + (q2 - target).pow(2).mean()
-        opt_critic.zero_grad(set_to_none=True)
-        q_loss.backward()
-        opt_critic.step()
-        count[0] += 1
-        if count[0] % 2 == 0:
-            critic.requires_grad_(False)
-            a_loss = -critic.q1(obs, actor(obs)).mean()
-            opt_actor.zero_grad(set_to_none=True)
-            a_loss.backward()
-            critic.requires_grad_(True)
-            opt_actor.step()
-            B.soft_update(actor_target, actor, 0.005)
-            B.soft_update(critic_target, critic, 0.005)
+    def counted(sample) -> None:
+        step(sample)
+        done[0] += 1
 
-    return step
+    return counted
 
 
 def main() -> None:

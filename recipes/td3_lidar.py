@@ -20,6 +20,7 @@ from __future__ import annotations
 import copy
 import sys
 from pathlib import Path
+from typing import Callable
 
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -29,6 +30,39 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import builders as B  # noqa: E402
 
 from torchnav.policy import Actor  # noqa: E402
+
+
+def make_step(tc, actor, critic, actor_target, critic_target, opt_actor, opt_critic, updates_done: Callable[[], int]):
+    """One gradient step ``step(sample) -> {name: loss}``: the critics every step, the actor and the targets
+    every ``tc.policy_delay`` steps (``updates_done()``: the steps before this one). ``bench/replay_update.py``
+    times it too."""
+    gamma, tau, noise, clip = float(tc.gamma), float(tc.tau), float(tc.policy_noise), float(tc.noise_clip)
+
+    def step(sample):
+        obs, action, nxt = sample["observation"], sample["action"], sample["next"]
+        with torch.no_grad():
+            smoothing = (torch.randn_like(action) * noise).clamp(-clip, clip)
+            next_action = (actor_target(nxt["observation"]) + smoothing).clamp(-1.0, 1.0)
+            q_next = torch.minimum(*critic_target(nxt["observation"], next_action))
+            discount = nxt["discount"] if int(tc.n_steps) > 1 else gamma  # gamma ** (steps summed) with n-step returns
+            target = nxt["reward"] + discount * (~nxt["terminated"]) * q_next  # truncation still bootstraps
+        q1, q2 = critic(obs, action)
+        q_loss = (q1 - target).pow(2).mean() + (q2 - target).pow(2).mean()
+        opt_critic.zero_grad(set_to_none=True)
+        q_loss.backward()
+        opt_critic.step()
+        if (updates_done() + 1) % int(tc.policy_delay) == 0:
+            critic.requires_grad_(False)  # the actor's loss needs no gradients of the critic's weights: a third fewer matmuls
+            a_loss = -critic.q1(obs, actor(obs)).mean()
+            opt_actor.zero_grad(set_to_none=True)
+            a_loss.backward()
+            critic.requires_grad_(True)
+            opt_actor.step()
+            B.soft_update(actor_target, actor, tau)
+            B.soft_update(critic_target, critic, tau)
+        return {"qvalue": q_loss.detach()}  # read (a host sync) only when the loop logs it
+
+    return step
 
 
 def main(argv: list[str]) -> dict:
@@ -52,32 +86,7 @@ def main(argv: list[str]) -> dict:
     policy = TensorDictSequential(TensorDictModule(actor, in_keys=["observation"], out_keys=["action"]), exploration)
     collector = B.make_collector(run, policy, random_start=True)
     B.restore(run, state, collector)
-    gamma, tau, noise, clip = float(tc.gamma), float(tc.tau), float(tc.policy_noise), float(tc.noise_clip)
-
-    # -- one gradient step: critics every step, actor and targets every `policy_delay` steps ------
-    def step(sample):
-        obs, action, nxt = sample["observation"], sample["action"], sample["next"]
-        with torch.no_grad():
-            smoothing = (torch.randn_like(action) * noise).clamp(-clip, clip)
-            next_action = (actor_target(nxt["observation"]) + smoothing).clamp(-1.0, 1.0)
-            q_next = torch.minimum(*critic_target(nxt["observation"], next_action))
-            discount = nxt["discount"] if int(tc.n_steps) > 1 else gamma  # gamma ** (steps summed) with n-step returns
-            target = nxt["reward"] + discount * (~nxt["terminated"]) * q_next  # truncation still bootstraps
-        q1, q2 = critic(obs, action)
-        q_loss = (q1 - target).pow(2).mean() + (q2 - target).pow(2).mean()
-        opt_critic.zero_grad(set_to_none=True)
-        q_loss.backward()
-        opt_critic.step()
-        if (run.counters["updates"] + 1) % int(tc.policy_delay) == 0:
-            critic.requires_grad_(False)  # the actor's loss needs no gradients of the critic's weights: a third fewer matmuls
-            a_loss = -critic.q1(obs, actor(obs)).mean()
-            opt_actor.zero_grad(set_to_none=True)
-            a_loss.backward()
-            critic.requires_grad_(True)
-            opt_actor.step()
-            B.soft_update(actor_target, actor, tau)
-            B.soft_update(critic_target, critic, tau)
-        return {"qvalue": q_loss.detach()}  # read (a host sync) only when the loop logs it
+    step = make_step(tc, actor, critic, actor_target, critic_target, opt_actor, opt_critic, lambda: run.counters["updates"])
 
     # -- the loop ------------------------------------------------------------------------------------
     with B.Progress(run, state, lambda: actor) as progress:
